@@ -1,0 +1,5 @@
+import sys
+
+from sysid.cli import main
+
+sys.exit(main())

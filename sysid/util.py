@@ -1,0 +1,81 @@
+"""Small shared helpers: atomic file output, progress reporting, seeded random generators."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike, suffix: str | None = None):
+    """Yield a temporary path next to ``path``; rename it onto ``path`` only on success.
+
+    Whatever is written to the yielded path appears at ``path`` all at once or not at all:
+    if the block raises, the temporary file is removed and ``path`` is left untouched.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix,
+                               dir=path.parent)
+    os.close(fd)
+    tmp = Path(tmp)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def rng(seed: int | None) -> np.random.Generator:
+    """The project's random generator: every random process takes an explicit seed."""
+    if seed is None:
+        raise ValueError("a seed is required: every random process in sysid is seeded")
+    return np.random.default_rng(seed)
+
+
+class Progress:
+    """Per-stage progress lines on stderr, silenced with ``quiet=True``.
+
+    >>> with Progress(quiet=True).stage("spectra"):
+    ...     pass
+    """
+
+    def __init__(self, quiet: bool = False, stream=None):
+        self.quiet = quiet
+        self.stream = stream if stream is not None else sys.stderr
+
+    def message(self, text: str) -> None:
+        if not self.quiet:
+            print(text, file=self.stream, flush=True)
+
+    @contextlib.contextmanager
+    def stage(self, name: str):
+        start = time.perf_counter()
+        self.message(f"[sysid] {name} ...")
+        try:
+            yield self
+        finally:
+            self.message(f"[sysid] {name} done in {time.perf_counter() - start:.2f} s")
+
+    def bar(self, iterable, total: int | None = None, label: str = ""):
+        """Iterate with a one-line text bar (``label [#####.....] k/n``)."""
+        items = list(iterable) if total is None else iterable
+        n = len(items) if total is None else total
+        start = time.perf_counter()
+        for k, item in enumerate(items, 1):
+            yield item
+            if not self.quiet:
+                filled = int(30 * k / max(n, 1))
+                self.stream.write(f"\r{label} [{'#' * filled}{'.' * (30 - filled)}] {k}/{n}"
+                                  f" {time.perf_counter() - start:.1f} s")
+                self.stream.flush()
+        if not self.quiet:
+            self.stream.write("\n")
+            self.stream.flush()

@@ -1,0 +1,94 @@
+"""Shared helpers: units, rigid-body kinematics, atomic writes, CLI error handling."""
+
+import math
+
+import numpy as np
+import pytest
+
+from sysid import units
+from sysid.cli import main
+from sysid.errors import SysidError
+from sysid.kinematics import derivative_name, rigid_body_terms
+from sysid.util import atomic_path, rng
+
+
+def test_conversions_match_definitions():
+    assert units.convert(1.0, "ft/s", "m/s") == pytest.approx(0.3048)
+    assert units.convert(math.pi, "rad", "deg") == pytest.approx(180.0)
+    assert units.convert(1.0, "kt", "ft/s") == pytest.approx(1852 / 3600 / 0.3048)
+    assert units.convert(9.80665, "m/s2", "ft/s^2") == pytest.approx(32.174049, rel=1e-7)
+    with pytest.raises(ValueError, match="different dimensions"):
+        units.convert(1.0, "m", "rad")
+    with pytest.raises(ValueError, match="unknown unit"):
+        units.convert(1.0, "furlong", "m")
+
+
+def test_rigid_body_terms_against_nonlinear_kinematics():
+    """Finite-difference the nonlinear gravity/Euler equations and compare with the terms."""
+    theta0, phi0, u0, v0, w0 = 6.76, -2.87, 12.0, -1.5, 3.0
+    g = units.G0 / units.FT
+    d2r = math.pi / 180
+
+    def f(x):  # x = u v w p q r phi theta psi in ft/s, deg/s, deg; no aerodynamic forces
+        u, v, w, p, q, r, phi, th, _ = x
+        p, q, r, phi, th = p * d2r, q * d2r, r * d2r, phi * d2r, th * d2r
+        return np.array([
+            r * v - q * w - g * math.sin(th),
+            p * w - r * u + g * math.cos(th) * math.sin(phi),
+            q * u - p * v + g * math.cos(th) * math.cos(phi),
+            0.0, 0.0, 0.0,
+            (p + math.tan(th) * (q * math.sin(phi) + r * math.cos(phi))) / d2r,
+            (q * math.cos(phi) - r * math.sin(phi)) / d2r,
+            ((q * math.sin(phi) + r * math.cos(phi)) / math.cos(th)) / d2r,
+        ])
+
+    x0 = np.array([u0, v0, w0, 0, 0, 0, phi0, theta0, 0.0])
+    jac = np.empty((9, 9))
+    for k in range(9):
+        dx = np.zeros(9)
+        dx[k] = 1e-5
+        jac[:, k] = (f(x0 + dx) - f(x0 - dx)) / 2e-5
+    terms = rigid_body_terms(theta0=theta0, phi0=phi0, u0=u0, v0=v0, w0=w0)
+    # The steady-flight terms neglect products with trim rates (zero here) only.
+    np.testing.assert_allclose(terms.values, jac, atol=1e-7)
+    assert derivative_name("q", "u") == "M_u" and derivative_name("r", "ped") == "N_ped"
+
+
+def test_atomic_path_leaves_nothing_on_failure(tmp_path):
+    target = tmp_path / "out.nc"
+    with pytest.raises(RuntimeError):
+        with atomic_path(target) as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("boom")
+    assert list(tmp_path.iterdir()) == []
+    with atomic_path(target) as tmp:
+        tmp.write_text("whole")
+    assert target.read_text() == "whole" and len(list(tmp_path.iterdir())) == 1
+
+
+def test_rng_requires_seed_and_is_reproducible():
+    with pytest.raises(ValueError, match="seed"):
+        rng(None)
+    assert rng(3).standard_normal(5).tobytes() == rng(3).standard_normal(5).tobytes()
+
+
+def test_cli_reports_user_errors_on_one_line(capsys, monkeypatch):
+    import argparse
+
+    import sysid.cli as cli
+
+    def failing(args):
+        raise SysidError("channel 'q' missing in record sweep_lon_1")
+
+    real = cli.build_parser
+
+    def parser_with_failing_command():
+        parser = real()
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        sub.add_parser("boom").set_defaults(func=failing)
+        return parser
+
+    monkeypatch.setattr(cli, "build_parser", parser_with_failing_command)
+    assert main(["boom"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err == "sysid boom: error: channel 'q' missing in record sweep_lon_1"
