@@ -598,9 +598,9 @@ def read_time_history(path: str | os.PathLike, mapping: Mapping[str, str] | None
         token of the name when it is one of ``sweep 3211 2311 doublet multisine``, else
         ``"imported"``. The excited ``axis`` is the first control name among the tokens.
     trim
-        ``{channel: trim value}`` in analysis units; channels not given get the mean of the
-        first :data:`TRIM_WINDOW` (1 s) of data, as the data model prescribes for imported
-        data.
+        ``{channel: trim value}`` in analysis units (any sysid channel, read or not);
+        channels read but not given get the mean of the first :data:`TRIM_WINDOW` (1 s) of
+        data, as the data model prescribes for imported data.
 
     Returns
     -------
@@ -639,6 +639,9 @@ def read_time_history(path: str | os.PathLike, mapping: Mapping[str, str] | None
     t = rows[:, index[time_col]]
     where = f"file {path}, column {time_col!r}"
     time_unit = (units or {}).get("time") or file_units[index[time_col]] or "s"
+    # CF-style "seconds" / "seconds since <epoch>": the origin is dropped below anyway.
+    if re.fullmatch(r"(s|sec|secs|second|seconds)(\s+since\s.*)?", time_unit.strip(), re.I):
+        time_unit = "s"
     try:
         t = t * conversion_factor(time_unit, "s")
     except ValueError as exc:
@@ -687,10 +690,13 @@ def read_time_history(path: str | os.PathLike, mapping: Mapping[str, str] | None
     time = (t - t[0])
     first = time < TRIM_WINDOW - 0.5 * dt
     trim = dict(trim or {})
-    unknown = sorted(set(trim) - set(data_vars))
+    unknown = sorted(set(trim) - set(data_vars) - set(CHANNELS))
     if unknown:
-        raise InputDataError(f"file {path}: trim given for channel(s) {unknown} that are not "
-                             f"read; channels: {sorted(data_vars)}")
+        raise InputDataError(f"file {path}: trim given for unknown channel(s) {unknown}; "
+                             f"expected channels read ({sorted(data_vars)}) or sysid channels "
+                             f"({sorted(CHANNELS)})")
+    for var_name, value in trim.items():
+        attrs[f"trim_{var_name}"] = float(value)
     for var_name, (_, values, _) in data_vars.items():
         key = f"trim_{var_name}"
         if var_name in trim:
