@@ -1,0 +1,113 @@
+"""``sysid frequency-response``: composite conditioned frequency responses of a campaign.
+
+Reads the manoeuvres ``/maneuvers/<name>`` of a campaign file matching ``--maneuvers``
+(default ``sweep_*``), concatenates them CIFER-style, computes the conditioned composite
+frequency responses of every input/output pair (:func:`sysid.frequency_response.frequency_response`)
+and writes them to the group ``/frequency_response`` of the same file (atomically), plus the
+per-window results to ``/frequency_response_windows`` with ``--keep-windows``. Prints one line
+per pair: the frequency range where the (partial) coherence is at least 0.6 and its mean.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+
+import numpy as np
+
+from sysid.errors import InputDataError
+
+#: Coherence guideline for a usable frequency range (methods.md).
+COHERENCE_GUIDELINE = 0.6
+
+
+def _floats(text: str) -> list[float]:
+    try:
+        return [float(v) for v in text.split(",") if v.strip()]
+    except ValueError as exc:
+        raise InputDataError(f"--windows: expected comma-separated seconds, got {text!r}") from exc
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "frequency-response",
+        help="composite conditioned frequency responses of a campaign's sweeps",
+        description=__doc__.split("\n\n")[1].replace("\n", " "),
+    )
+    p.add_argument("campaign", help="campaign netCDF file (updated in place)")
+    p.add_argument("--inputs", required=True, help="comma-separated inputs, e.g. lon,lat,col,ped")
+    p.add_argument("--outputs", required=True,
+                   help="comma-separated outputs, e.g. u,v,w,p,q,r,phi,theta,psi")
+    p.add_argument("--maneuvers", default="sweep_*",
+                   help="glob selecting /maneuvers/<name> records (default: sweep_*)")
+    p.add_argument("--windows", type=_floats, default=None,
+                   help="comma-separated window lengths in s (default: 5 from the record lengths)")
+    p.add_argument("--n-windows", type=int, default=5, help="number of windows (default 5)")
+    p.add_argument("--overlap", type=float, default=0.8, help="segment overlap (default 0.8)")
+    p.add_argument("--omega-min", type=float, default=None, help="lowest frequency, rad/s")
+    p.add_argument("--omega-max", type=float, default=None, help="highest frequency, rad/s")
+    p.add_argument("--n-frequencies", type=int, default=200,
+                   help="log-spaced frequency points (default 200)")
+    p.add_argument("--C-eps", dest="C_eps", type=float, default=None,
+                   help="random-error constant of Eq. 9 (default 0.7)")
+    p.add_argument("--unconditioned", action="store_true",
+                   help="single-input estimates instead of MIMO conditioning")
+    p.add_argument("--keep-windows", action="store_true",
+                   help="also store the per-window results in /frequency_response_windows")
+    p.add_argument("--quiet", action="store_true", help="no progress or summary output")
+    p.set_defaults(func=run)
+
+
+def _records(tree, pattern: str, path) -> dict:
+    if "maneuvers" not in tree.children:
+        raise InputDataError(f"campaign {path} has no /maneuvers group")
+    names = sorted(n for n in tree["maneuvers"].children if fnmatch.fnmatchcase(n, pattern))
+    if not names:
+        raise InputDataError(
+            f"campaign {path}: no manoeuvre matches {pattern!r} (found "
+            f"{sorted(tree['maneuvers'].children)})")
+    return {n: tree["maneuvers"][n].to_dataset() for n in names}
+
+
+def summary_lines(ds) -> list[str]:
+    """One line per pair: coherent range (coherence >= 0.6) and mean coherence."""
+    coh_name = "partial_coherence" if ds.attrs.get("conditioned") else "coherence"
+    w = ds["frequency"].values
+    lines = [f"{'pair':>16}  {'coherent range (rad/s)':>24}  {'mean ' + coh_name:>24}"]
+    for o in ds["output"].values:
+        for i in ds["input"].values:
+            g2 = ds[coh_name].sel(output=o, input=i).values
+            ok = np.nan_to_num(g2) >= COHERENCE_GUIDELINE
+            rng = f"{w[ok].min():8.3g} .. {w[ok].max():<8.3g}" if ok.any() else "none"
+            lines.append(f"{f'{o}/{i}':>16}  {rng:>24}  {np.nanmean(g2):24.2f}")
+    return lines
+
+
+def run(args) -> int:
+    from sysid.frequency_response import frequency_response
+    from sysid.io import read_campaign, update_campaign
+    from sysid.spectra import DEFAULT_C_EPS
+    from sysid.util import Progress
+
+    progress = Progress(quiet=args.quiet)
+    tree = read_campaign(args.campaign)
+    records = _records(tree, args.maneuvers, args.campaign)
+    progress.message(f"[sysid] frequency response from {len(records)} record(s): "
+                     f"{', '.join(records)}")
+    result = frequency_response(
+        records, args.inputs, args.outputs, n_windows=args.n_windows, windows=args.windows,
+        overlap=args.overlap, n_frequencies=args.n_frequencies, omega_min=args.omega_min,
+        omega_max=args.omega_max,
+        C_eps=DEFAULT_C_EPS if args.C_eps is None else args.C_eps,
+        conditioned=not args.unconditioned, keep_windows=args.keep_windows, progress=progress)
+    composite, per_window = result if args.keep_windows else (result, None)
+    update_campaign(args.campaign, "frequency_response", composite)
+    if per_window is not None:
+        update_campaign(args.campaign, "frequency_response_windows", per_window)
+    if not args.quiet:
+        for line in summary_lines(composite):
+            print(line)
+        groups = "/frequency_response"
+        if per_window is not None:
+            groups += " and /frequency_response_windows"
+        print(f"wrote {groups} to {args.campaign}")
+    return 0
