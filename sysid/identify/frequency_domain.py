@@ -1,0 +1,804 @@
+"""Frequency-domain output-error identification (CIFER DERIVID style).
+
+Cost (methods.md, "Frequency-domain fit"; Tischler & Remple 2012). For each selected
+output/input pair ``l``, over ``n_omega`` (default 20) log-spaced frequencies of the pair's
+coherent range,
+
+    J_l = (20 / n_omega) sum_omega W_gamma [ W_g (|T_c|_dB - |T|_dB)^2
+                                           + W_p (angle T_c - angle T)^2 ]
+
+with the measured (composite) response ``T_c``, the model response ``T`` of Eq. 19 (with the
+per-entry delays), the phase difference in degrees wrapped to +-180, ``W_g = 1``,
+``W_p = 0.01745`` and ``W_gamma = [1.58 (1 - exp(-gamma^2))]^2`` (``gamma^2`` is the coherence
+itself, not squared again). ``J = sum_l J_l`` and ``J_ave = J / n_pairs``.
+
+Coherence used: the ``partial_coherence`` of the composite Dataset when present (it measures
+the linear dependence of the output on the *conditioned* input, i.e. the quality of the
+conditioned MIMO response ``H`` that is fitted, paper Eq. 11), else the ordinary
+``coherence`` (Eq. 7). Its range ``>= coherence_min`` (default 0.6, the paper's guideline)
+selects the fitted band: the longest run of consecutive frequencies meeting it.
+
+Minimisation: :func:`scipy.optimize.least_squares` on the residual vector
+``r = sqrt((20/n) W_gamma) [ W_g^1/2 (dB error), W_p^1/2 (phase error, deg) ]`` (so
+``sum r^2 = J``), with the analytic Jacobian of Eq. 19 (see
+:meth:`sysid.models.LinearStructure.pair_response`). Default method ``"trf"``: a trust-region
+Levenberg-Marquardt-type algorithm that, unlike MINPACK's ``"lm"``, honours bounds, which
+keeps free delays in their physical range 0..0.3 s (methods.md). ``"lm"`` is accepted when no
+parameter is bounded. The fit is restarted once from the solution perturbed by a seeded
++-20 % to confirm the minimum; the better of the two is kept and both costs are reported.
+
+Accuracy (CIFER convention): ``H = G^T G`` with ``G`` the Jacobian of the weighted residuals
+above, i.e. ``H = sum_l (20/n) sum_omega W_gamma [W_g g_dB g_dB^T + W_p g_phase g_phase^T]``
+(half the Gauss-Newton Hessian of J). ``CR_i = sqrt((H^-1)_ii)``, ``I_i = 1/sqrt(H_ii)``. No
+residual-variance rescaling: CIFER's cost weights are chosen so that J behaves like a
+likelihood with unit-variance residuals (one unit of cost ~ 1 dB magnitude error or 7.6 deg
+phase error at unit coherence weight), so the bound is comparable across pairs and data sets
+and the 20 % / 10 % guidelines apply to it unchanged (Tischler & Remple 2012).
+
+Start values (paper: results depend on them; here they must not): from a start model
+Dataset (e.g. the truth model's quasi-steady linearisation) when given, otherwise from a
+frequency-domain equation-error fit (:func:`equation_error_start`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+import scipy.optimize
+import xarray as xr
+
+from sysid.errors import IdentificationError, InputDataError
+from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
+                                      stepwise_reduction)
+from sysid.identify.statistics import ParameterStatistics, parameter_statistics
+from sysid.models import LinearStructure
+from sysid.util import Progress
+
+__all__ = [
+    "DEFAULT_PAIRS",
+    "W_G",
+    "W_P",
+    "coherence_weight",
+    "parse_pairs",
+    "FitData",
+    "select_fit_data",
+    "cifer_cost",
+    "equation_error_start",
+    "FrequencyFitResult",
+    "identify_frequency_domain",
+]
+
+#: The paper's input/output pairs (model structure section): on-axis q/lon, p/lat, w/col,
+#: r/ped; coupling p/lon, q/lat, r/col, v/ped; high-coherence u/lon, v/lat, r/lat, p/col, q/col.
+DEFAULT_PAIRS = (("q", "lon"), ("p", "lon"), ("u", "lon"), ("p", "lat"), ("q", "lat"),
+                 ("v", "lat"), ("r", "lat"), ("w", "col"), ("r", "col"), ("p", "col"),
+                 ("q", "col"), ("r", "ped"), ("v", "ped"))
+W_G = 1.0  #: magnitude weight (per dB^2), methods.md
+W_P = 0.01745  #: phase weight (per deg^2), methods.md
+COHERENCE_MIN = 0.6  #: coherence guideline for the fitted range (paper, methods.md)
+N_POINTS = 20  #: frequency points per pair (methods.md)
+_DB = 20.0 / math.log(10.0)
+_DEG = 180.0 / math.pi
+
+
+def coherence_weight(gamma2):
+    """CIFER coherence weight ``W_gamma = [1.58 (1 - exp(-gamma^2))]^2``.
+
+    ``gamma2`` is the coherence (already a squared quantity, 0..1); it is not squared again.
+    """
+    g2 = np.clip(np.nan_to_num(np.asarray(gamma2, dtype=float), nan=0.0), 0.0, 1.0)
+    return (1.58 * (1.0 - np.exp(-g2))) ** 2
+
+
+def parse_pairs(pairs) -> tuple[tuple[str, str], ...]:
+    """``"q/lon,p/lat"`` or ``["q/lon", ("p", "lat")]`` -> ``(("q", "lon"), ("p", "lat"))``."""
+    if pairs is None:
+        return DEFAULT_PAIRS
+    if isinstance(pairs, str):
+        pairs = [p for p in pairs.split(",") if p.strip()]
+    out = []
+    for p in pairs:
+        if isinstance(p, str):
+            parts = [x.strip() for x in p.split("/")]
+            if len(parts) != 2 or not all(parts):
+                raise InputDataError(f"pair {p!r}: expected 'output/input', e.g. 'q/lon'")
+            out.append((parts[0], parts[1]))
+        else:
+            o, i = p
+            out.append((str(o), str(i)))
+    if not out:
+        raise InputDataError("no input/output pairs given")
+    return tuple(out)
+
+
+def _pair_name(pair) -> str:
+    return f"{pair[0]}/{pair[1]}"
+
+
+@dataclass
+class FitData:
+    """The points fitted: per point its pair, frequency and measured response.
+
+    Arrays have shape (n_point,); pair ``l`` owns the points with ``pair_index == l``.
+
+    Attributes
+    ----------
+    pairs : tuple of (output, input)
+        Pairs with a coherent range (fitted).
+    skipped : dict
+        ``"out/in" -> reason`` for the pairs left out.
+    omega : ndarray
+        rad/s.
+    mag_db, phase_deg : ndarray
+        Measured magnitude (dB) and phase (deg, unwrapped along the pair's range).
+    coherence : ndarray
+        gamma^2 at the point; ``weight`` = ``(20/n) W_gamma``.
+    ranges : dict
+        ``"out/in" -> (omega_min, omega_max)``.
+    coherence_variable : str
+        ``"partial_coherence"`` or ``"coherence"``.
+    """
+
+    pairs: tuple
+    skipped: dict
+    pair_index: np.ndarray
+    omega: np.ndarray
+    mag_db: np.ndarray
+    phase_deg: np.ndarray
+    coherence: np.ndarray
+    random_error: np.ndarray
+    weight: np.ndarray
+    ranges: dict
+    n_points: int
+    coherence_min: float
+    coherence_variable: str
+
+    @property
+    def H(self) -> np.ndarray:
+        """Measured complex response at the points."""
+        return 10.0 ** (self.mag_db / 20.0) * np.exp(1j * np.deg2rad(self.phase_deg))
+
+
+def _longest_run(mask: np.ndarray) -> tuple[int, int] | None:
+    best, start, best_len = None, None, 0
+    for k, ok in enumerate(list(mask) + [False]):
+        if ok and start is None:
+            start = k
+        elif not ok and start is not None:
+            if k - start > best_len:
+                best, best_len = (start, k), k - start
+            start = None
+    return best
+
+
+def select_fit_data(fr: xr.Dataset, pairs=None, *, coherence_min: float = COHERENCE_MIN,
+                    n_points: int = N_POINTS,
+                    ranges: Mapping[str, tuple[float, float]] | None = None,
+                    frequency_range: tuple[float, float] | None = None) -> FitData:
+    """Choose the fitted points of each pair from a composite frequency-response Dataset.
+
+    Parameters
+    ----------
+    fr : xr.Dataset
+        Dims ``output, input, frequency`` (rad/s); ``H`` complex; ``partial_coherence`` or
+        ``coherence``; optionally ``random_error`` (docs/data_model.md).
+    pairs : str or sequence, optional
+        ``"q/lon,p/lat"`` etc.; default :data:`DEFAULT_PAIRS`.
+    coherence_min : float
+        Pairs are fitted over the longest run of consecutive frequencies with
+        ``gamma^2 >= coherence_min`` (default 0.6).
+    n_points : int
+        Log-spaced points per pair over that range (default 20); the measured magnitude (dB),
+        unwrapped phase and coherence are interpolated linearly in log frequency.
+    ranges : mapping, optional
+        ``"q/lon" -> (omega_min, omega_max)`` limiting a pair's range (rad/s).
+    frequency_range : (float, float), optional
+        Global limit for every pair (rad/s).
+
+    Returns
+    -------
+    FitData
+        Pairs without a coherent range (or absent from ``fr``) are listed in ``skipped``.
+    """
+    pairs = parse_pairs(pairs)
+    if "H" not in fr:
+        raise InputDataError("frequency-response Dataset has no variable 'H'")
+    if "window" in fr["H"].dims:
+        raise InputDataError("frequency-response Dataset still has a 'window' dimension; "
+                             "identification needs the composite responses")
+    for dim in ("output", "input", "frequency"):
+        if dim not in fr["H"].dims:
+            raise InputDataError(f"frequency-response 'H' lacks dimension {dim!r} "
+                                 f"(has {fr['H'].dims})")
+    cvar = "partial_coherence" if "partial_coherence" in fr else "coherence"
+    if cvar not in fr:
+        raise InputDataError("frequency-response Dataset has neither 'partial_coherence' nor "
+                             "'coherence'")
+    omega_all = np.asarray(fr["frequency"].values, dtype=float)
+    order = np.argsort(omega_all)
+    omega_all = omega_all[order]
+    ranges = dict(ranges or {})
+    outputs = [str(x) for x in fr["output"].values]
+    inputs = [str(x) for x in fr["input"].values]
+    kept, skipped = [], {}
+    cols = {k: [] for k in ("pair", "omega", "mag", "phase", "g2", "eps")}
+    used_ranges = {}
+    for pair in pairs:
+        name = _pair_name(pair)
+        if pair[0] not in outputs or pair[1] not in inputs:
+            skipped[name] = "not in the frequency-response Dataset"
+            continue
+        H = np.asarray(fr["H"].sel(output=pair[0], input=pair[1]).values)[order]
+        g2 = np.asarray(fr[cvar].sel(output=pair[0], input=pair[1]).values, float)[order]
+        eps = (np.asarray(fr["random_error"].sel(output=pair[0], input=pair[1]).values,
+                          float)[order] if "random_error" in fr else np.full(len(H), np.nan))
+        ok = np.isfinite(H) & np.isfinite(g2) & (g2 >= coherence_min) & (np.abs(H) > 0)
+        ok &= omega_all > 0
+        for lim in (frequency_range, ranges.get(name)):
+            if lim is not None:
+                ok &= (omega_all >= lim[0]) & (omega_all <= lim[1])
+        run = _longest_run(ok)
+        if run is None or run[1] - run[0] < 2:
+            skipped[name] = f"no coherent range (coherence {cvar} >= {coherence_min} at fewer " \
+                            f"than 2 consecutive frequencies)"
+            continue
+        sl = slice(*run)
+        w = omega_all[sl]
+        lw = np.log(w)
+        pts = np.exp(np.linspace(lw[0], lw[-1], n_points))
+        lp = np.log(pts)
+        mag = 20.0 * np.log10(np.abs(H[sl]))
+        ph = np.unwrap(np.angle(H[sl]))
+        cols["pair"].append(np.full(n_points, len(kept)))
+        cols["omega"].append(pts)
+        cols["mag"].append(np.interp(lp, lw, mag))
+        cols["phase"].append(np.rad2deg(np.interp(lp, lw, ph)))
+        cols["g2"].append(np.interp(lp, lw, g2[sl]))
+        cols["eps"].append(np.interp(lp, lw, eps[sl]))
+        used_ranges[name] = (float(w[0]), float(w[-1]))
+        kept.append(pair)
+    if not kept:
+        raise IdentificationError(
+            "no input/output pair has a coherent frequency range (coherence >= "
+            f"{coherence_min}): " + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
+    cat = {k: np.concatenate(v) for k, v in cols.items()}
+    weight = (20.0 / n_points) * coherence_weight(cat["g2"])
+    return FitData(tuple(kept), skipped, cat["pair"].astype(int), cat["omega"], cat["mag"],
+                   cat["phase"], cat["g2"], cat["eps"], weight, used_ranges, int(n_points),
+                   float(coherence_min), cvar)
+
+
+def _wrap180(x):
+    return (np.asarray(x) + 180.0) % 360.0 - 180.0
+
+
+class _Problem:
+    """Residuals and analytic Jacobian of the CIFER cost for one structure and data set."""
+
+    def __init__(self, structure: LinearStructure, data: FitData):
+        self.structure = structure
+        self.data = data
+        missing = [_pair_name(p) for p in data.pairs
+                   if p[0] not in structure.outputs or p[1] not in structure.inputs]
+        if missing:
+            raise IdentificationError(f"structure {structure.name!r} has no output/input for "
+                                      f"pairs {missing} (outputs {list(structure.outputs)}, "
+                                      f"inputs {list(structure.inputs)})")
+        outs = np.array([structure.outputs.index(p[0]) for p in data.pairs])
+        ins = np.array([structure.inputs.index(p[1]) for p in data.pairs])
+        self.out_idx = outs[data.pair_index]
+        self.in_idx = ins[data.pair_index]
+        self.s = 1j * data.omega
+        self.sqrt_w = np.sqrt(data.weight)
+        self.sqrt_wp = math.sqrt(W_P)
+        self.n_cost = 0
+        self.n_jac = 0
+        self._cache_key = None
+        self._cache = None
+
+    def _eval(self, theta, jacobian):
+        key = (theta.tobytes(), jacobian)
+        if self._cache_key == key or (not jacobian and self._cache_key == (theta.tobytes(), True)):
+            return self._cache
+        out = self.structure.pair_response(theta, self.s, self.out_idx, self.in_idx,
+                                           jacobian=jacobian)
+        self._cache_key, self._cache = key, out
+        return out
+
+    def errors(self, theta):
+        """Raw errors: magnitude (dB) and wrapped phase (deg), model minus measured."""
+        out = self._eval(np.asarray(theta, float), False)
+        T = out[0] if isinstance(out, tuple) else out
+        with np.errstate(divide="ignore"):
+            mag = _DB * np.log(np.abs(T))
+        e_mag = mag - self.data.mag_db
+        e_ph = _wrap180(np.angle(T, deg=True) - self.data.phase_deg)
+        bad = ~np.isfinite(e_mag)
+        if np.any(bad):  # a model response of exactly zero: large but finite penalty
+            e_mag = np.where(bad, 400.0, e_mag)
+        return e_mag, e_ph
+
+    def residuals(self, theta):
+        self.n_cost += 1
+        e_mag, e_ph = self.errors(theta)
+        return np.concatenate([self.sqrt_w * math.sqrt(W_G) * e_mag,
+                               self.sqrt_w * self.sqrt_wp * e_ph])
+
+    def jacobian(self, theta):
+        self.n_jac += 1
+        T, dT = self._eval(np.asarray(theta, float), True)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel = dT / T[:, None]
+        rel = np.nan_to_num(rel)
+        g_mag = _DB * rel.real
+        g_ph = _DEG * rel.imag
+        return np.vstack([(self.sqrt_w * math.sqrt(W_G))[:, None] * g_mag,
+                          (self.sqrt_w * self.sqrt_wp)[:, None] * g_ph])
+
+    def pair_costs(self, theta) -> np.ndarray:
+        r = self.residuals(theta)
+        n = len(self.data.omega)
+        per_point = r[:n] ** 2 + r[n:] ** 2
+        return np.bincount(self.data.pair_index, weights=per_point,
+                           minlength=len(self.data.pairs))
+
+
+def cifer_cost(structure: LinearStructure, data: FitData, theta=None) -> dict[str, float]:
+    """CIFER cost per pair (``"q/lon" -> J_l``) of a structure at ``theta`` (default start),
+    with ``"J"`` (total) and ``"J_ave"`` (total / number of pairs)."""
+    prob = _Problem(structure, data)
+    theta = structure.theta0 if theta is None else np.asarray(theta, float)
+    costs = prob.pair_costs(theta)
+    out = {_pair_name(p): float(c) for p, c in zip(data.pairs, costs)}
+    out["J"] = float(costs.sum())
+    out["J_ave"] = float(costs.mean())
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# Start values: frequency-domain equation error
+# --------------------------------------------------------------------------------------------
+
+
+def equation_error_start(fr: xr.Dataset, structure: LinearStructure, data: FitData | None = None,
+                         *, coherence_min: float = COHERENCE_MIN) -> np.ndarray:
+    """Start values of the free parameters from a frequency-domain equation-error fit.
+
+    With every state measured (C = I), the state equation holds for the response of all
+    states to each input ``k``: ``s H_ik = sum_j A_ij H_jk + B~_ik`` (unit input k). Each row
+    ``i`` of A and B is a linear least-squares problem in its free entries, over the measured
+    frequencies of each input where ``gamma^2_ik >= coherence_min`` (restricted to the fitted
+    ranges of that input's pairs when ``data`` is given). Every equation is normalised by
+    ``|s H_ik|`` (relative equation error, so all frequencies count alike) and weighted by
+    ``sqrt(W_gamma)``.
+
+    Free delays enter through the first-order expansion ``B_ik e^{-s tau} ~ B_ik - s c_ik``
+    with ``c_ik = B_ik tau`` as an extra unknown, so ``tau = c/B`` (least squares over the
+    delay's entries, clipped to its bounds). Parameters that no equation determines (rows
+    without coherent data, C/D parameters) keep the structure's start values.
+    """
+    st = structure
+    theta = st.theta0.copy()
+    states = list(st.states)
+    fr_out = [str(x) for x in fr["output"].values]
+    fr_in = [str(x) for x in fr["input"].values]
+    if not all(s in fr_out for s in states):
+        return theta  # equation error needs every state's response
+    cvar = "partial_coherence" if "partial_coherence" in fr else "coherence"
+    omega = np.asarray(fr["frequency"].values, float)
+    Hall = fr["H"].sel(output=states).transpose("output", "input", "frequency").values
+    G2 = np.nan_to_num(fr[cvar].sel(output=states).transpose("output", "input", "frequency")
+                       .values.astype(float))
+    free_pos = {int(k): j for j, k in enumerate(st.free_index)}
+    # Known part: fixed matrices plus fixed parameters (free ones set to zero).
+    Afix, Bfix, _, _, tau_fix = st.matrices(np.zeros(len(st.free_index)))
+    band = {}
+    if data is not None:
+        for pair, (lo, hi) in data.ranges.items():
+            inp = pair.split("/")[1]
+            a, b = band.get(inp, (np.inf, -np.inf))
+            band[inp] = (min(a, lo), max(b, hi))
+    free_delay = {}  # (row, column) -> delay parameter index, for free delays
+    for k, rows, col in st._delay_entries:
+        if st.free_mask[k]:
+            for r in rows:
+                free_delay[(int(r), int(col))] = int(k)
+    c_est: dict[tuple[int, int], float] = {}
+    b_est: dict[tuple[int, int], float] = {}
+    kA, rA, cA = st._entries["A"]
+    kB, rB, cB = st._entries["B"]
+    for i in range(len(states)):
+        regs = [("A", int(k), int(c)) for k, r, c in zip(kA, rA, cA)
+                if r == i and st.free_mask[k]]
+        regs += [("B", int(k), int(c)) for k, r, c in zip(kB, rB, cB)
+                 if r == i and st.free_mask[k]]
+        if not regs:
+            continue
+        regs += [("c", k, c) for (r, c), k in free_delay.items() if r == i]
+        rows_X, rows_y = [], []
+        for m, inp in enumerate(st.inputs):
+            if inp not in fr_in:
+                continue
+            ki = fr_in.index(inp)
+            H = Hall[:, ki, :]  # (n_state, n_frequency)
+            g2 = G2[i, ki, :]
+            ok = (g2 >= coherence_min) & np.all(np.isfinite(H), axis=0) & (omega > 0)
+            if inp in band:
+                ok &= (omega >= band[inp][0]) & (omega <= band[inp][1])
+            if ok.sum() < 2:
+                continue
+            s = 1j * omega[ok]
+            Hk = H[:, ok]
+            delayed = (i, m) in free_delay
+            lhs = s * Hk[i] - Afix[i] @ Hk
+            lhs = lhs - Bfix[i, m] * (1.0 if delayed else np.exp(-s * tau_fix[i, m]))
+            X = np.zeros((ok.sum(), len(regs)), dtype=complex)
+            for col, (kind, k, c) in enumerate(regs):
+                if kind == "A":
+                    X[:, col] = Hk[c]
+                elif kind == "B" and c == m:
+                    X[:, col] = 1.0 if delayed else np.exp(-s * tau_fix[i, m])
+                elif kind == "c" and c == m:
+                    X[:, col] = -s  # B e^{-s tau} ~ B - s (B tau)
+            scale = np.sqrt(coherence_weight(g2[ok])) / np.maximum(np.abs(s * Hk[i]), 1e-12)
+            rows_X.append(X * scale[:, None])
+            rows_y.append(lhs * scale)
+        if not rows_X:
+            continue
+        X = np.vstack(rows_X)
+        y = np.concatenate(rows_y)
+        Xr = np.vstack([X.real, X.imag])
+        yr = np.concatenate([y.real, y.imag])
+        used = np.any(Xr != 0, axis=0)
+        if not np.any(used):
+            continue
+        sol = np.zeros(len(regs))
+        sol[used] = np.linalg.lstsq(Xr[:, used], yr, rcond=None)[0]
+        for col, (kind, k, c) in enumerate(regs):
+            if not used[col]:
+                continue
+            if kind == "c":
+                c_est[(i, c)] = sol[col]
+                continue
+            par = st.parameters[k]
+            theta[free_pos[k]] = float(np.clip(sol[col], par.lower, par.upper))
+            if kind == "B":
+                b_est[(i, c)] = sol[col]
+    # Delays from c = B tau, least squares over the delay's entries.
+    for k, rows, col in st._delay_entries:
+        if not st.free_mask[k]:
+            continue
+        num = den = 0.0
+        for r in rows:
+            key = (int(r), int(col))
+            if key in c_est:
+                b = b_est.get(key, Bfix[key])
+                num += c_est[key] * b
+                den += b * b
+        if den > 0:
+            par = st.parameters[k]
+            theta[free_pos[k]] = float(np.clip(num / den, par.lower, par.upper))
+    return theta
+
+
+# --------------------------------------------------------------------------------------------
+# The fit
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Converged:
+    structure: LinearStructure
+    theta: np.ndarray
+    pair_cost: np.ndarray
+    J: float
+    J_ave: float
+    statistics: ParameterStatistics
+    nfev: int
+    status: int
+    message: str
+
+
+def _solve(problem: _Problem, theta0, *, method: str, tol: float, max_nfev: int | None
+           ) -> scipy.optimize.OptimizeResult:
+    lo, hi = problem.structure.bounds
+    theta0 = np.clip(np.asarray(theta0, float), lo, hi)
+    bounded = np.any(np.isfinite(lo)) or np.any(np.isfinite(hi))
+    if method == "lm":
+        if bounded:
+            raise IdentificationError("method 'lm' (MINPACK) cannot honour parameter bounds "
+                                      "(e.g. delays in 0..0.3 s); use method='trf'")
+        return scipy.optimize.least_squares(problem.residuals, theta0, jac=problem.jacobian,
+                                            method="lm", x_scale="jac", ftol=tol, xtol=tol,
+                                            gtol=tol, max_nfev=max_nfev)
+    # keep strictly inside the bounds (trf requirement)
+    span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+    theta0 = np.clip(theta0, lo + 1e-9 * span, hi - 1e-9 * span)
+    return scipy.optimize.least_squares(problem.residuals, theta0, jac=problem.jacobian,
+                                        bounds=(lo, hi), method=method, x_scale="jac",
+                                        ftol=tol, xtol=tol, gtol=tol, max_nfev=max_nfev)
+
+
+def _converge(structure: LinearStructure, data: FitData, theta0, *, method: str, tol: float,
+              max_nfev: int | None, counter: dict) -> _Converged:
+    prob = _Problem(structure, data)
+    if len(structure.free_index) == 0:
+        theta = np.zeros(0)
+        res_nfev, status, msg = 0, 0, "no free parameters"
+    else:
+        res = _solve(prob, theta0, method=method, tol=tol, max_nfev=max_nfev)
+        theta, res_nfev, status, msg = res.x, res.nfev, res.status, res.message
+    costs = prob.pair_costs(theta)
+    stats = parameter_statistics(prob.jacobian(theta) if len(theta) else np.zeros((1, 0)),
+                                 theta, structure.free_names)
+    counter["cost"] += prob.n_cost
+    counter["jacobian"] += prob.n_jac
+    return _Converged(structure, theta, costs, float(costs.sum()), float(costs.mean()), stats,
+                      int(res_nfev), int(status), str(msg))
+
+
+@dataclass
+class FrequencyFitResult:
+    """Outcome of :func:`identify_frequency_domain`.
+
+    Attributes
+    ----------
+    model : xr.Dataset
+        Model Dataset (docs/data_model.md), ``method = "frequency_domain"``.
+    structure : LinearStructure
+        The final (reduced) structure; ``theta`` its free values.
+    statistics : ParameterStatistics
+        Accuracy of the free parameters of the final model.
+    pair_cost : dict
+        ``"q/lon" -> J_l``; ``J`` and ``J_ave`` totals.
+    data : FitData
+        Fitted points; ``data.skipped`` the pairs left out and why.
+    reduction : ReductionResult or None
+    start : str
+        ``"model"``, ``"equation_error"`` or ``"structure"``.
+    restart : dict
+        ``J_ave`` of the first convergence and of the restart from the perturbed solution.
+    n_cost_evaluations, n_jacobian_evaluations : int
+    elapsed : float
+        Wall time, s.
+    """
+
+    model: xr.Dataset
+    structure: LinearStructure
+    theta: np.ndarray
+    statistics: ParameterStatistics
+    pair_cost: dict
+    J: float
+    J_ave: float
+    data: FitData
+    reduction: ReductionResult | None
+    start: str
+    restart: dict
+    n_cost_evaluations: int
+    n_jacobian_evaluations: int
+    elapsed: float
+    full_statistics: ParameterStatistics | None = None
+    initial_structure: LinearStructure | None = None
+
+    @property
+    def skipped_pairs(self) -> dict:
+        return dict(self.data.skipped)
+
+    @property
+    def unidentifiable(self) -> tuple[str, ...]:
+        """Parameters without influence on the selected pairs (final model, or the full model
+        before reduction when reduction removed them)."""
+        names = set(self.statistics.unidentifiable)
+        if self.full_statistics is not None:
+            names |= set(self.full_statistics.unidentifiable)
+        return tuple(sorted(names))
+
+    def value(self, name: str) -> float:
+        """Final value of any parameter (free, fixed or removed)."""
+        return float(self.model["value"].sel(parameter=name))
+
+    def table(self) -> str:
+        """Derivative table like the paper's Tables 2-3, delays, cost per pair and J_ave."""
+        m = self.model
+        lines = [f"Frequency-domain identification ({self.structure.name}), start: {self.start}",
+                 f"{'parameter':<12}{'value':>14}{'CR %':>9}{'I %':>9}"]
+        free = m["free"].values.astype(bool)
+        for k, name in enumerate(m["parameter"].values):
+            if not free[k]:
+                continue
+            flag = "" if bool(m["identifiable"].values[k]) else "  unidentifiable"
+            lines.append(f"{str(name):<12}{float(m['value'][k]):>14.5g}"
+                         f"{_pct(float(m['cramer_rao_percent'][k])):>9}"
+                         f"{_pct(float(m['insensitivity_percent'][k])):>9}{flag}")
+        delays = [(str(n), float(m["value"][k])) for k, n in enumerate(m["parameter"].values)
+                  if str(m["matrix"].values[k]) == "delay" and free[k]]
+        if delays:
+            lines.append("delays: " + ", ".join(f"{n} = {v * 1000:.1f} ms" for n, v in delays))
+        lines.append("cost per pair: " + ", ".join(
+            f"{k} {v:.2f}" for k, v in self.pair_cost.items() if k not in ("J", "J_ave")))
+        lines.append(f"J_ave = {self.J_ave:.3f} over {len(self.data.pairs)} pairs")
+        if self.data.skipped:
+            lines.append("skipped pairs: " + "; ".join(f"{k} ({v})"
+                                                       for k, v in self.data.skipped.items()))
+        if self.reduction is not None and self.reduction.steps:
+            lines.append("model reduction:")
+            lines.append(self.reduction.table())
+        return "\n".join(lines)
+
+
+def _pct(x: float) -> str:
+    return "inf" if not np.isfinite(x) else f"{x:.1f}"
+
+
+def _perturb(theta, structure: LinearStructure, seed: int, fraction: float) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    lo, hi = structure.bounds
+    scale = np.where(np.abs(theta) > 0, np.abs(theta), 1e-3)
+    out = theta + fraction * scale * rng.uniform(-1.0, 1.0, size=theta.shape)
+    return np.clip(out, lo, hi)
+
+
+def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pairs=None,
+                              start: xr.Dataset | np.ndarray | None = None,
+                              coherence_min: float = COHERENCE_MIN, n_points: int = N_POINTS,
+                              ranges: Mapping[str, tuple[float, float]] | None = None,
+                              frequency_range: tuple[float, float] | None = None,
+                              reduce: bool = True, cr_max: float = GUIDELINES["cr_max"],
+                              insensitivity_max: float = GUIDELINES["insensitivity_max"],
+                              max_cost_increase: float = GUIDELINES["max_cost_increase"],
+                              protected: Sequence[str] = (), method: str = "trf",
+                              tol: float = 1e-10, max_nfev: int | None = None,
+                              restart_fraction: float = 0.2, seed: int = 0,
+                              quiet: bool = True, progress: Progress | None = None
+                              ) -> FrequencyFitResult:
+    """Identify a structure from composite frequency responses (CIFER-style output error).
+
+    Parameters
+    ----------
+    fr : xr.Dataset
+        Composite frequency responses: dims ``output, input, frequency``; ``H`` complex,
+        ``partial_coherence`` (preferred) or ``coherence``, ``random_error``.
+    structure : LinearStructure
+        Model structure; its free parameters are estimated.
+    pairs : str or sequence, optional
+        Fitted pairs, e.g. ``"q/lon,p/lat"``; default :data:`DEFAULT_PAIRS` (the paper's 13).
+    start : xr.Dataset or array, optional
+        Start values: a model Dataset (e.g. the truth model's quasi-steady linearisation) or
+        the free-parameter vector. Default: frequency-domain equation error when every state
+        is measured, else the structure's values.
+    coherence_min, n_points, ranges, frequency_range
+        Point selection, see :func:`select_fit_data` (defaults 0.6 and 20).
+    reduce : bool
+        Run the stepwise model reduction (:mod:`sysid.identify.reduction`) with
+        ``cr_max`` (20 %), ``insensitivity_max`` (10 %), ``max_cost_increase`` (2 J_ave)
+        and never removing ``protected``.
+    method : {"trf", "lm", "dogbox"}
+        :func:`scipy.optimize.least_squares` method (default "trf", honours delay bounds).
+    tol : float
+        ``ftol = xtol = gtol`` of the optimiser.
+    restart_fraction, seed : float, int
+        The final fit is restarted from its solution perturbed by ``+-restart_fraction``
+        (relative, seeded) to confirm the minimum.
+    quiet, progress
+        Per-stage lines on stderr unless quiet.
+
+    Returns
+    -------
+    FrequencyFitResult
+    """
+    t_start = time.perf_counter()
+    progress = progress or Progress(quiet=quiet)
+    data = select_fit_data(fr, pairs, coherence_min=coherence_min, n_points=n_points,
+                           ranges=ranges, frequency_range=frequency_range)
+    for name, reason in data.skipped.items():
+        progress.message(f"[sysid] identify: pair {name} skipped: {reason}")
+    if len(structure.free_index) == 0:
+        raise IdentificationError(f"structure {structure.name!r} has no free parameters")
+    counter = {"cost": 0, "jacobian": 0}
+    if start is None:
+        theta0 = equation_error_start(fr, structure, data, coherence_min=coherence_min)
+        start_kind = "equation_error"
+        if np.array_equal(theta0, structure.theta0):
+            start_kind = "structure"
+    elif isinstance(start, xr.Dataset):
+        theta0, start_kind = structure.values_from_model(start), "model"
+    else:
+        theta0, start_kind = np.asarray(start, float), "values"
+        if theta0.shape != structure.theta0.shape:
+            raise InputDataError(f"start has {theta0.size} values; structure "
+                                 f"{structure.name!r} has {structure.theta0.size} free "
+                                 f"parameters {list(structure.free_names)}")
+    kw = dict(method=method, tol=tol, max_nfev=max_nfev, counter=counter)
+    with progress.stage(f"frequency-domain fit of {len(structure.free_index)} parameters on "
+                        f"{len(data.pairs)} pairs"):
+        full = _converge(structure, data, theta0, **kw)
+        progress.message(f"[sysid]   converged: J_ave = {full.J_ave:.3f} ({full.nfev} cost "
+                         f"evaluations)")
+    reduction = None
+    final = full
+    if reduce:
+        def refit(removed, previous):
+            prev: _Converged = previous.payload
+            st = structure.fix(removed, 0.0)
+            start_vals = dict(zip(prev.structure.free_names, prev.theta))
+            th0 = np.array([start_vals[n] for n in st.free_names])
+            c = _converge(st, data, th0, **kw)
+            return FitOutcome(c.J_ave, c.statistics, c)
+
+        with progress.stage("model reduction"):
+            reduction = stepwise_reduction(
+                refit, FitOutcome(full.J_ave, full.statistics, full), cr_max=cr_max,
+                insensitivity_max=insensitivity_max, max_cost_increase=max_cost_increase,
+                protected=protected, progress=progress)
+        final = reduction.final.payload
+    # Restart from the perturbed solution to confirm the minimum.
+    theta_r = _perturb(final.theta, final.structure, seed, restart_fraction)
+    again = _converge(final.structure, data, theta_r, **kw)
+    restart = {"J_ave_first": final.J_ave, "J_ave_restart": again.J_ave,
+               "fraction": restart_fraction, "seed": seed}
+    if again.J < final.J:
+        final = again
+    restart["same_minimum"] = bool(abs(restart["J_ave_first"] - restart["J_ave_restart"])
+                                   <= 1e-3 * max(final.J_ave, 1e-6) + 1e-8)
+    progress.message(f"[sysid]   restart: J_ave {restart['J_ave_first']:.4f} -> "
+                     f"{restart['J_ave_restart']:.4f}")
+    pair_cost = {_pair_name(p): float(c) for p, c in zip(data.pairs, final.pair_cost)}
+    pair_cost["J"] = final.J
+    pair_cost["J_ave"] = final.J_ave
+    elapsed = time.perf_counter() - t_start
+    model = _model_dataset(final, data, reduction, start_kind, restart, counter, fr, elapsed,
+                           method)
+    return FrequencyFitResult(model, final.structure, final.theta, final.statistics, pair_cost,
+                              final.J, final.J_ave, data, reduction, start_kind, restart,
+                              counter["cost"], counter["jacobian"], elapsed,
+                              full_statistics=full.statistics, initial_structure=structure)
+
+
+def _model_dataset(final: _Converged, data: FitData, reduction, start_kind, restart, counter,
+                   fr, elapsed, method) -> xr.Dataset:
+    st = final.structure
+    attrs = {
+        "method": "frequency_domain",
+        "cost": final.J,
+        "J_ave": final.J_ave,
+        "pairs": ",".join(_pair_name(p) for p in data.pairs),
+        "skipped_pairs": json.dumps(data.skipped),
+        "coherence_variable": data.coherence_variable,
+        "coherence_min": data.coherence_min,
+        "n_points_per_pair": data.n_points,
+        "W_g": W_G,
+        "W_p": W_P,
+        "cramer_rao_convention": "CIFER: H = G^T G of the weighted residuals, CR = sqrt(diag H^-1)",
+        "start": start_kind,
+        "optimizer": f"scipy.optimize.least_squares({method})",
+        "restart": json.dumps(restart),
+        "n_cost_evaluations": int(counter["cost"]),
+        "n_jacobian_evaluations": int(counter["jacobian"]),
+        "elapsed_s": float(elapsed),
+        "reduction": int(reduction is not None),
+        "reduction_steps": json.dumps([s.as_dict() for s in reduction.steps]
+                                      if reduction is not None else []),
+        "removed_parameters": ",".join(reduction.removed) if reduction is not None else "",
+    }
+    for key in ("campaign", "flight_condition", "name"):
+        if key in fr.attrs and isinstance(fr.attrs[key], (str, int, float)):
+            attrs[f"data_{key}"] = fr.attrs[key]
+    ds = st.to_dataset(final.theta, final.statistics, attrs=attrs)
+    cost = np.full((len(st.outputs), len(st.inputs)), np.nan)
+    wmin = np.full_like(cost, np.nan)
+    wmax = np.full_like(cost, np.nan)
+    for (o, i), c in zip(data.pairs, final.pair_cost):
+        r, k = st.outputs.index(o), st.inputs.index(i)
+        cost[r, k] = c
+        wmin[r, k], wmax[r, k] = data.ranges[_pair_name((o, i))]
+    ds["cost"] = (("output", "input"), cost, {"long_name": "CIFER cost per input/output pair"})
+    ds["omega_min"] = (("output", "input"), wmin,
+                       {"long_name": "lowest fitted frequency", "units": "rad/s"})
+    ds["omega_max"] = (("output", "input"), wmax,
+                       {"long_name": "highest fitted frequency", "units": "rad/s"})
+    return ds
