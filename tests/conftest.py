@@ -1,0 +1,24 @@
+"""Shared fixtures.
+
+``truth_fmu`` builds the truth helicopter FMU once per test session (cached by source hash,
+so later sessions reuse it) and ``hover_trim`` trims it in hover. Tests that need them are
+marked ``@pytest.mark.fmu``.
+"""
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def truth_fmu():
+    """Path of the truth helicopter FMU, built from fmus/ with the machine's C compiler."""
+    from sysid.fmu import build_fmu
+
+    return build_fmu()
+
+
+@pytest.fixture(scope="session")
+def hover_trim(truth_fmu):
+    """Hover trim of the truth helicopter (sysid.fmu.TrimResult)."""
+    from sysid.fmu import trim
+
+    return trim(0.0, fmu=truth_fmu)
