@@ -145,10 +145,11 @@ def frequency_response(records, inputs: Sequence[str], outputs: Sequence[str], *
         Conditioning by the normal equations or the paper's Eq. 10 recursion (same result).
     coherence_weight : float
         Weight of the coherence term of the composite cost Eq. 16 (default 5.0, the
-        paper's). Where the windows disagree (partial coherence well below 0.6) this term
-        pulls the composite coherence up to the windows' mean coherence by changing the
-        composite spectra, which can move ``H`` further from every window; ``0`` reduces
-        compositing to the Eq. 14-weighted average of the window spectra.
+        paper's). Where the windows disagree this term brings the composite coherence to the
+        windows' weighted mean coherence; with the spectral terms scaled by the windows'
+        spread (:mod:`sysid.composite`) the change goes mostly into the spectrum the windows
+        disagree on (typically ``Gyy``), not into ``H``. ``0`` reduces compositing to the
+        Eq. 14-weighted average of the window spectra.
     keep_windows : bool
         Also return the per-window results (dim ``window``, s).
     progress : sysid.util.Progress or bool, optional
