@@ -1,0 +1,422 @@
+/*
+ * A linear state-space model with per-entry input delays, plugged into the shared FMI 2.0
+ * boilerplate of fmus/common (fmu_model.h). Generic: every number that belongs to one
+ * exported model is in the generated headers linear_dims.h, linear_tables.h and
+ * model_variables.h (written by sysid.export).
+ *
+ *   x' = A x + sum_k B_ik u_k(t - tau_ik),   y = trim_y + C x + D (u - trim_u)
+ *
+ * Model exchange: each delay group (one delay acting on some B entries of one input) is an
+ * n-th order Pade approximant with its own continuous states. Co-simulation: the states are
+ * advanced by the exact zero-order-hold discretisation of the communication step (matrix
+ * exponential by Pade scaling and squaring, recomputed when the step changes) and each delay
+ * group reads a ring buffer of past inputs, linearly interpolated between communication
+ * points: the convention of sysid.models.simulate. See README.md.
+ */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmu_model.h"
+#include "linear_tables.h"
+
+/* The generated tables and the boilerplate must agree on the state vector. */
+typedef char state_count_check[(N_STATES == N_X + N_GROUPS * PADE_ORDER) ? 1 : -1];
+
+#define R(comp, vr) ((comp)->s.r[(vr)])
+
+/* ------------------------------------------------------------------------------------------ */
+/* initialisation                                                                               */
+
+/* Coefficients of the normalised [n/n] Pade approximant of exp(-p):
+ * num(p) = sum (-1)^k c_k p^k, den(p) = sum c_k p^k, c_k = (2n-k)! n! / ((2n)! k! (n-k)!). */
+static void pade_realisation(ModelData *d) {
+    double c[PADE_ALLOC + 1];
+    int n = PADE_ORDER, k;
+    if (n <= 0) return;
+    c[0] = 1.0;
+    for (k = 1; k <= n; k++) c[k] = c[k - 1] * (double)(n - k + 1) / ((double)k * (2 * n - k + 1));
+    d->pade_d = (n % 2 == 0) ? 1.0 : -1.0;
+    for (k = 0; k < n; k++) {
+        double sign_k = (k % 2 == 0) ? 1.0 : -1.0;
+        d->pade_a[k] = c[k] / c[n];
+        /* remainder num/c_n - d den/c_n, coefficient of p^k */
+        d->pade_c[k] = (sign_k - d->pade_d) * c[k] / c[n];
+    }
+    /* Similarity scaling by a_0: the first state then equals the input at steady state,
+     * so that all Pade states are of the size of the input (good for error control). */
+    d->pade_b = d->pade_a[0];
+    for (k = 0; k < n; k++) d->pade_c[k] /= d->pade_a[0];
+}
+
+fmi2Status model_initialize(ModelInstance *comp) {
+    ModelData *d = &comp->s.data;
+    double A[N_X][N_X], B[N_X][N_U], C[N_Y][N_X], D[N_Y][N_U];
+    int i, j, k, g;
+
+    memcpy(A, A0, sizeof A);
+    memcpy(B, B0, sizeof B);
+    memcpy(C, C0, sizeof C);
+    memcpy(D, D0, sizeof D);
+    for (g = 0; g < N_GROUPS; g++) d->tau[g] = 0.0;
+
+    /* Fixed parts plus the parameters, in the model's analysis units. */
+    for (k = 0; k < N_PAR; k++) {
+        double value = R(comp, VR_PAR0 + k);
+        int row = PAR_ROW[k], col = PAR_COL[k];
+        if (!isfinite(value)) {
+            fmu_log(comp, fmi2Error, "logError", "parameter %s is not finite", PAR_NAMES[k]);
+            return fmi2Error;
+        }
+        switch (PAR_MATRIX[k]) {
+        case MATRIX_A: A[row][col] += value; break;
+        case MATRIX_B: B[row][col] += value; break;
+        case MATRIX_C: C[row][col] += value; break;
+        case MATRIX_D: D[row][col] += value; break;
+        default: /* MATRIX_DELAY: row is the delay group */
+            if (value < 0.0) {
+                fmu_log(comp, fmi2Error, "logError",
+                        "delay parameter %s must be >= 0 s, got %g", PAR_NAMES[k], value);
+                return fmi2Error;
+            }
+            d->tau[row] = value;
+        }
+    }
+
+    /* Change of units to the FMU's: x_fmu = X_SCALE x, y_fmu = Y_SCALE y (inputs stay %). */
+    for (i = 0; i < N_X; i++) {
+        for (j = 0; j < N_X; j++) d->A[i][j] = X_SCALE[i] * A[i][j] / X_SCALE[j];
+        for (k = 0; k < N_U; k++) d->B[i][k] = X_SCALE[i] * B[i][k];
+    }
+    for (i = 0; i < N_Y; i++) {
+        for (j = 0; j < N_X; j++) d->C[i][j] = Y_SCALE[i] * C[i][j] / X_SCALE[j];
+        for (k = 0; k < N_U; k++) d->D[i][k] = Y_SCALE[i] * D[i][k];
+    }
+    for (k = 0; k < N_U; k++) d->trim_u[k] = R(comp, VR_TRIM_U0 + k);
+    for (i = 0; i < N_Y; i++) d->trim_y[i] = R(comp, VR_TRIM_Y0 + i);
+    pade_realisation(d);
+    d->zoh_valid = 0; /* the matrices may have changed */
+    return fmi2OK;
+}
+
+void model_reset(ModelInstance *comp) {
+    /* The boilerplate has zeroed ModelData: empty history, no cached discretisation. */
+    comp->s.data.zoh_valid = 0;
+    comp->s.data.hist_count = 0;
+    comp->s.data.hist_dropped = 0;
+}
+
+/* ------------------------------------------------------------------------------------------ */
+/* continuous-time equations                                                                    */
+
+/* dx = A x + B~ u: entries of B in a delay group take that group's delayed input v[g]. */
+static void state_derivative(const ModelData *d, const double *x, const double *u,
+                             const double *v, double *dx) {
+    int i, j, k;
+    for (i = 0; i < N_X; i++) {
+        double sum = 0.0;
+        for (j = 0; j < N_X; j++) sum += d->A[i][j] * x[j];
+        for (k = 0; k < N_U; k++) {
+            int g = ENTRY_GROUP[i * N_U + k];
+            sum += d->B[i][k] * (g < 0 ? u[k] : v[g]);
+        }
+        dx[i] = sum;
+    }
+}
+
+static void perturbation_inputs(const ModelInstance *comp, double *u) {
+    int k;
+    for (k = 0; k < N_U; k++) u[k] = R(comp, VR_U0 + k) - comp->s.data.trim_u[k];
+}
+
+void model_derivatives(const ModelInstance *comp, double t, const double *x, double *dx) {
+    const ModelData *d = &comp->s.data;
+    double u[N_U], v[N_GROUPS_ALLOC];
+    int g, i;
+    (void)t;
+    perturbation_inputs(comp, u);
+    for (g = 0; g < N_GROUPS; g++) {
+        const double *z = x + N_X + g * PADE_ORDER;
+        double *dz = dx + N_X + g * PADE_ORDER;
+        double ug = u[GROUP_INPUT[g]];
+        if (d->tau[g] > 0.0) {
+            /* dz/dt = (Ac z + b e_n u) / tau, v = c z + d u (time scaled by tau) */
+            double rate = 1.0 / d->tau[g], last = d->pade_b * ug, out = d->pade_d * ug;
+            for (i = 0; i < PADE_ORDER; i++) {
+                last -= d->pade_a[i] * z[i];
+                out += d->pade_c[i] * z[i];
+                if (i + 1 < PADE_ORDER) dz[i] = rate * z[i + 1];
+            }
+            dz[PADE_ORDER - 1] = rate * last;
+            v[g] = out;
+        } else {
+            /* no delay: the group passes its input, its states decay (they start at 0) */
+            for (i = 0; i < PADE_ORDER; i++) dz[i] = -z[i];
+            v[g] = ug;
+        }
+    }
+    state_derivative(d, x, u, v, dx);
+}
+
+/* ------------------------------------------------------------------------------------------ */
+/* co-simulation: input history and exact discretisation                                        */
+
+static void history_append(ModelData *d, double t, const double *u_abs) {
+    int k;
+    if (d->hist_count > 0 && d->hist_t[d->hist_head] >= t) {
+        /* a repeated communication point overwrites its sample */
+        for (k = 0; k < N_U; k++) d->hist_u[d->hist_head][k] = u_abs[k];
+        return;
+    }
+    d->hist_head = (d->hist_head + 1) % HIST_LEN;
+    if (d->hist_count < HIST_LEN) d->hist_count++;
+    else d->hist_dropped = 1;
+    d->hist_t[d->hist_head] = t;
+    for (k = 0; k < N_U; k++) d->hist_u[d->hist_head][k] = u_abs[k];
+}
+
+/* Input k (absolute) at time s <= newest sample, linearly interpolated between the stored
+ * communication points; before the first sample it is held at the first sample. Returns 0
+ * if the sample needed has already been overwritten. */
+static int history_value(const ModelData *d, int k, double s, double *value) {
+    int n, idx = d->hist_head, newer = -1;
+    for (n = 0; n < d->hist_count; n++) {
+        if (d->hist_t[idx] <= s) {
+            if (newer < 0) {
+                *value = d->hist_u[idx][k];
+            } else {
+                double w = (s - d->hist_t[idx]) / (d->hist_t[newer] - d->hist_t[idx]);
+                *value = (1.0 - w) * d->hist_u[idx][k] + w * d->hist_u[newer][k];
+            }
+            return 1;
+        }
+        newer = idx;
+        idx = (idx + HIST_LEN - 1) % HIST_LEN;
+    }
+    if (d->hist_dropped) return 0;
+    *value = d->hist_u[newer][k]; /* the oldest sample is the first one */
+    return 1;
+}
+
+/* Delayed inputs (perturbations) of all groups at time t from the history. */
+static fmi2Status delayed_inputs(const ModelInstance *comp, double t, double *v) {
+    const ModelData *d = &comp->s.data;
+    int g;
+    for (g = 0; g < N_GROUPS; g++) {
+        int k = GROUP_INPUT[g];
+        double value;
+        if (d->hist_count == 0) {
+            value = R(comp, VR_U0 + k);
+        } else if (!history_value(d, k, t - d->tau[g], &value)) {
+            fmu_log(comp, fmi2Error, "logError",
+                    "delay %s = %g s reaches back beyond the %d stored communication points; "
+                    "use longer communication steps or export with more history samples",
+                    PAR_NAMES[GROUP_PAR[g]], d->tau[g], HIST_LEN);
+            return fmi2Error;
+        }
+        v[g] = value - d->trim_u[k];
+    }
+    return fmi2OK;
+}
+
+/* LU solve of M X = Y in place (M n x n, Y n x n, row-major), partial pivoting. */
+static int solve_in_place(double *M, double *Y, int n) {
+    int i, j, k, p;
+    for (k = 0; k < n; k++) {
+        double big = fabs(M[k * n + k]);
+        p = k;
+        for (i = k + 1; i < n; i++)
+            if (fabs(M[i * n + k]) > big) { big = fabs(M[i * n + k]); p = i; }
+        if (big == 0.0) return 0;
+        if (p != k) {
+            for (j = 0; j < n; j++) {
+                double tmp = M[k * n + j]; M[k * n + j] = M[p * n + j]; M[p * n + j] = tmp;
+                tmp = Y[k * n + j]; Y[k * n + j] = Y[p * n + j]; Y[p * n + j] = tmp;
+            }
+        }
+        for (i = k + 1; i < n; i++) {
+            double f = M[i * n + k] / M[k * n + k];
+            if (f == 0.0) continue;
+            for (j = k; j < n; j++) M[i * n + j] -= f * M[k * n + j];
+            for (j = 0; j < n; j++) Y[i * n + j] -= f * Y[k * n + j];
+        }
+    }
+    for (k = n - 1; k >= 0; k--) {
+        for (j = 0; j < n; j++) {
+            double sum = Y[k * n + j];
+            for (i = k + 1; i < n; i++) sum -= M[k * n + i] * Y[i * n + j];
+            Y[k * n + j] = sum / M[k * n + k];
+        }
+    }
+    return 1;
+}
+
+static void matmul(const double *X, const double *Y, double *Z, int n) {
+    int i, j, k;
+    for (i = 0; i < n; i++)
+        for (j = 0; j < n; j++) {
+            double sum = 0.0;
+            for (k = 0; k < n; k++) sum += X[i * n + k] * Y[k * n + j];
+            Z[i * n + j] = sum;
+        }
+}
+
+/* E = exp(M), n x n, by the [6/6] Pade approximant with scaling and squaring: M is scaled by
+ * 2^-s so that its 1-norm is <= 1/2, where the [6/6] approximant's relative error bound is
+ * about 3e-16 (Moler & Van Loan 2003), then squared s times. Returns 0 on failure. */
+static int expm(const double *M, double *E, int n) {
+    const int q = 6;
+    size_t bytes = sizeof(double) * (size_t)n * (size_t)n;
+    double *X = malloc(bytes), *P = malloc(bytes), *N = malloc(bytes), *Dn = malloc(bytes);
+    double norm = 0.0, c = 1.0, scale;
+    int i, j, k, s = 0, ok = 0;
+    if (!X || !P || !N || !Dn) goto done;
+    for (j = 0; j < n; j++) {
+        double col = 0.0;
+        for (i = 0; i < n; i++) col += fabs(M[i * n + j]);
+        if (col > norm) norm = col;
+    }
+    if (!isfinite(norm)) goto done;
+    if (norm > 0.5) s = (int)ceil(log2(norm / 0.5));
+    scale = ldexp(1.0, -s);
+    for (i = 0; i < n * n; i++) X[i] = M[i] * scale;
+    /* N = sum c_k X^k, Dn = sum (-1)^k c_k X^k, P holds X^k */
+    memset(N, 0, bytes);
+    memset(Dn, 0, bytes);
+    for (i = 0; i < n; i++) N[i * n + i] = Dn[i * n + i] = 1.0;
+    memcpy(P, X, bytes);
+    for (k = 1; k <= q; k++) {
+        c *= (double)(q - k + 1) / ((double)k * (2 * q - k + 1));
+        for (i = 0; i < n * n; i++) {
+            N[i] += c * P[i];
+            Dn[i] += ((k % 2) ? -c : c) * P[i];
+        }
+        if (k < q) {
+            matmul(P, X, E, n);
+            memcpy(P, E, bytes);
+        }
+    }
+    if (!solve_in_place(Dn, N, n)) goto done; /* N <- Dn^-1 N */
+    for (k = 0; k < s; k++) {
+        matmul(N, N, E, n);
+        memcpy(N, E, bytes);
+    }
+    memcpy(E, N, bytes);
+    ok = 1;
+done:
+    free(X); free(P); free(N); free(Dn);
+    return ok;
+}
+
+/* Phi = exp(A h) and Psi = int_0^h exp(A s) ds from one exponential of the block matrix
+ * [[A h, I h], [0, 0]] (Van Loan): exp = [[Phi, Psi], [0, I]]. */
+static fmi2Status discretise(ModelInstance *comp, double h) {
+    ModelData *d = &comp->s.data;
+    const int n = 2 * N_X;
+    double *M = calloc((size_t)n * n, sizeof(double));
+    double *E = calloc((size_t)n * n, sizeof(double));
+    int i, j, ok = 0;
+    if (M && E) {
+        for (i = 0; i < N_X; i++) {
+            for (j = 0; j < N_X; j++) M[i * n + j] = d->A[i][j] * h;
+            M[i * n + N_X + i] = h;
+        }
+        ok = expm(M, E, n);
+        if (ok) {
+            for (i = 0; i < N_X; i++)
+                for (j = 0; j < N_X; j++) {
+                    d->Phi[i][j] = E[i * n + j];
+                    d->Psi[i][j] = E[i * n + N_X + j];
+                }
+        }
+    }
+    free(M);
+    free(E);
+    if (!ok) {
+        fmu_log(comp, fmi2Error, "logError",
+                "matrix exponential for the step %g s failed (non-finite A?)", h);
+        return fmi2Error;
+    }
+    d->h_zoh = h;
+    d->zoh_valid = 1;
+    return fmi2OK;
+}
+
+fmi2Status model_do_step(ModelInstance *comp, double h) {
+    ModelData *d = &comp->s.data;
+    double u_abs[N_U], u[N_U], v[N_GROUPS_ALLOC], f[N_X], x_new[N_X];
+    double *x = comp->s.r + VR_STATE0;
+    int i, j, k;
+
+    /* Reuse the discretisation for steps equal to rounding (a time grid t0 + k h gives
+     * steps that differ in the last bits); the effect of such a difference is below 1e-13. */
+    if (!d->zoh_valid || fabs(h - d->h_zoh) > 1e-13 * h) {
+        if (discretise(comp, h) != fmi2OK) return fmi2Error;
+    }
+    for (k = 0; k < N_U; k++) {
+        u_abs[k] = R(comp, VR_U0 + k);
+        u[k] = u_abs[k] - d->trim_u[k];
+    }
+    if (N_GROUPS > 0) history_append(d, comp->s.time, u_abs);
+    if (delayed_inputs(comp, comp->s.time, v) != fmi2OK) return fmi2Error;
+    /* forcing B~ u held over the step, then x+ = Phi x + Psi (B~ u) */
+    for (i = 0; i < N_X; i++) {
+        double sum = 0.0;
+        for (k = 0; k < N_U; k++) {
+            int g = ENTRY_GROUP[i * N_U + k];
+            sum += d->B[i][k] * (g < 0 ? u[k] : v[g]);
+        }
+        f[i] = sum;
+    }
+    for (i = 0; i < N_X; i++) {
+        double sum = 0.0;
+        for (j = 0; j < N_X; j++) sum += d->Phi[i][j] * x[j] + d->Psi[i][j] * f[j];
+        x_new[i] = sum;
+    }
+    for (i = 0; i < N_X; i++) {
+        if (!isfinite(x_new[i])) {
+            fmu_log(comp, fmi2Error, "logError",
+                    "state became non-finite at t = %.6g s (unstable model?)", comp->s.time + h);
+            return fmi2Error;
+        }
+        x[i] = x_new[i];
+    }
+    comp->s.time += h;
+    return fmi2OK;
+}
+
+/* ------------------------------------------------------------------------------------------ */
+/* outputs                                                                                      */
+
+void model_calculate_values(ModelInstance *comp) {
+    const ModelData *d = &comp->s.data;
+    const double *x = comp->s.r + VR_STATE0;
+    double *dx = comp->s.r + VR_DERIV0;
+    double u[N_U];
+    int i, j, k;
+
+    perturbation_inputs(comp, u);
+    if (comp->type == fmi2ModelExchange) {
+        model_derivatives(comp, comp->s.time, x, dx);
+    } else {
+        /* Co-simulation has no Pade states: der(x) uses the buffered delayed inputs. */
+        double v[N_GROUPS_ALLOC];
+        double value;
+        int g;
+        for (g = 0; g < N_GROUPS; g++) {
+            int kk = GROUP_INPUT[g];
+            if (d->hist_count == 0 ||
+                !history_value(d, kk, comp->s.time - d->tau[g], &value))
+                value = R(comp, VR_U0 + kk);
+            v[g] = value - d->trim_u[kk];
+        }
+        state_derivative(d, x, u, v, dx);
+        for (i = N_X; i < N_STATES; i++) dx[i] = 0.0;
+    }
+    for (i = 0; i < N_Y; i++) {
+        double y = d->trim_y[i];
+        for (j = 0; j < N_X; j++) y += d->C[i][j] * x[j];
+        for (k = 0; k < N_U; k++) y += d->D[i][k] * u[k];
+        R(comp, VR_Y0 + i) = y;
+    }
+}

@@ -1,0 +1,51 @@
+/*
+ * Model-private data of an exported linear model (see README.md in this folder).
+ *
+ * The sizes come from the generated header linear_dims.h. Everything the co-simulation step
+ * needs to continue exactly where it left off - the assembled matrices, the cached
+ * zero-order-hold discretisation and the input history of the delay buffers - lives here,
+ * so that an FMU-state snapshot (a plain copy of ModelData) restores it completely.
+ */
+#ifndef LINEAR_MODEL_H
+#define LINEAR_MODEL_H
+
+#include "linear_dims.h"
+
+/* C has no zero-length arrays: a model without delays still gets one (unused) slot. */
+#define N_GROUPS_ALLOC (N_GROUPS > 0 ? N_GROUPS : 1)
+#define PADE_ALLOC (PADE_ORDER > 0 ? PADE_ORDER : 1)
+
+typedef struct {
+    /* State-space matrices in the FMU's units (SI states, % inputs, SI outputs), assembled
+     * from the fixed parts and the parameters by model_initialize. */
+    double A[N_X][N_X];
+    double B[N_X][N_U];
+    double C[N_Y][N_X];
+    double D[N_Y][N_U];
+    double tau[N_GROUPS_ALLOC];  /* delay of each delay group, s */
+    double trim_u[N_U];          /* absolute trim inputs, % */
+    double trim_y[N_Y];          /* absolute trim outputs, SI */
+
+    /* Model exchange: normalised Pade realisation of exp(-p), p = s tau, shared by all
+     * groups (controllable canonical form, states scaled so that z_1 = u at steady state). */
+    double pade_a[PADE_ALLOC];   /* monic denominator coefficients a_0 .. a_{n-1} */
+    double pade_b;               /* input gain of the last state */
+    double pade_c[PADE_ALLOC];   /* output row */
+    double pade_d;               /* feed-through, (-1)^n */
+
+    /* Co-simulation: exact zero-order hold for the step h_zoh:
+     * Phi = exp(A h), Psi = int_0^h exp(A s) ds (so that Gamma = Psi B). */
+    double h_zoh;
+    int zoh_valid;
+    double Phi[N_X][N_X];
+    double Psi[N_X][N_X];
+
+    /* Co-simulation: ring buffer of the inputs at past communication points. */
+    double hist_t[HIST_LEN];
+    double hist_u[HIST_LEN][N_U];
+    int hist_head;    /* index of the newest sample */
+    int hist_count;   /* number of valid samples */
+    int hist_dropped; /* 1 once the oldest sample has been overwritten */
+} ModelData;
+
+#endif
