@@ -1,4 +1,5 @@
-"""Parametric identification: frequency-domain output error (CIFER-style), accuracy statistics
+"""Parametric identification: frequency-domain output error (CIFER-style), time-domain
+maximum-likelihood output error, accuracy statistics
 (Cramer-Rao bounds, insensitivities, correlations) and stepwise model reduction.
 
 The statistics and reduction modules are generic over the fit so that the time-domain
@@ -24,6 +25,8 @@ from sysid.identify.reduction import (
     stepwise_reduction,
 )
 from sysid.identify.statistics import ParameterStatistics, correlated_pairs, parameter_statistics
+from sysid.identify.time_domain import (MAX_COST_INCREASE, OutputErrorModel, TimeFitResult,
+                                        identify_time_domain)
 
 __all__ = [
     "DEFAULT_PAIRS",
@@ -43,4 +46,8 @@ __all__ = [
     "ParameterStatistics",
     "correlated_pairs",
     "parameter_statistics",
+    "MAX_COST_INCREASE",
+    "OutputErrorModel",
+    "TimeFitResult",
+    "identify_time_domain",
 ]

@@ -1,0 +1,1002 @@
+"""Time-domain output-error identification (maximum likelihood, Levenberg-Marquardt).
+
+The paper's time-domain reference method (methods.md, "Time-domain fit and verification";
+Jategaonkar, *Flight Vehicle System Identification*, 2nd ed., AIAA 2015, ch. 4; Klein & Morelli,
+*Aircraft System Identification*, AIAA 2006, ch. 6). The linear model of a structure
+(paper Eq. 18, per-B-entry delays)
+
+    x[k+1] = Phi x[k] + sum_g Gamma_g v_g[k] ,      y[k] = C x[k] + D u[k] + b ,   x[0] = x0
+
+is simulated with the measured inputs of one or more manoeuvres, with exactly the conventions
+of :func:`sysid.models.simulate`: exact zero-order-hold discretisation ``(Phi, Gamma)`` by
+one matrix exponential (:func:`sysid.models.discretize`); the B entries are grouped by
+(input, delay), group ``g`` fed with ``v_g[k] = u(t_k - tau_g)`` by linear interpolation
+between samples (held at the first sample before the record starts).
+
+Data: every record is a time-history Dataset (docs/data_model.md); inputs and measurements are
+perturbations about the record's ``trim_<channel>`` attributes (or the mean of the first
+second when a channel has none).
+
+Cost and estimator (maximum-likelihood output error, Jategaonkar 2015 sec. 4.3, Klein &
+Morelli 2006 sec. 6.2). With residuals ``e = z - y`` and the diagonal measurement-noise
+covariance ``R = diag(sigma_j^2)``,
+
+    L(theta, R) = 1/2 sum_records sum_k e[k]^T R^-1 e[k] + (N/2) sum_j ln R_jj
+
+(``N`` = samples over all records; the ``2 pi`` constant dropped). It is minimised by
+relaxation: (1) with R fixed, a Levenberg-Marquardt-type solve of the weighted least-squares
+problem (:func:`scipy.optimize.least_squares`, ``"trf"``, which honours the 0..0.3 s bounds
+of free delays); (2) ``R_jj = mean_k e_j[k]^2`` (its ML estimate); repeated until the relative
+changes of every ``R_jj`` and of ``L`` are below ``r_tol``/``cost_tol``.
+
+Nuisance parameters (methods.md): a bias per output and an initial state per record. Both
+enter the outputs *linearly* for a given ``theta`` (``y = y_u(theta) + O(theta) x0 + b`` with
+``O[k] = C Phi^k``), so they are eliminated by variable projection (Golub & Pereyra 1973):
+at every evaluation they are the weighted linear least-squares solution for that ``theta``,
+and the optimiser only sees the structure's parameters. This is the same minimum as
+estimating them jointly in the Levenberg-Marquardt loop, at a fraction of the cost. The
+Jacobian used is Kaufman's (1975): the output sensitivities at fixed nuisance, projected
+onto the orthogonal complement of the nuisance columns -- whose Gauss-Newton matrix is
+exactly the Schur complement of the joint information matrix, i.e. the information about
+``theta`` with the nuisance parameters marginalised. An initial-state column that is
+linearly dependent on the bias columns (e.g. heading ``psi``, which no state equation feeds
+back, so ``x0_psi`` and the ``psi`` bias act identically) is not estimated (set to 0) and
+reported as such.
+
+Output sensitivities (analytic, not finite differences). ``s = dx/dtheta`` obeys the same
+discrete dynamics, ``s[k+1] = Phi s[k] + dPhi x[k] + dGamma v[k] + Gamma dv[k]``, with
+``s[0] = 0``:
+
+- A entry: ``[dPhi, dGamma]`` is the Frechet derivative of the matrix exponential of the
+  augmented matrix ``[[A, B_g], [0, 0]] dt`` in the direction of the entry
+  (:func:`scipy.linalg.expm_frechet`), exact for the zero-order hold;
+- B entry ``(i, g)``: ``dGamma = Psi e_i e_g^T`` with ``Psi = int_0^dt e^{A s} ds``;
+- delay of group g: ``dv_g[k] = (u[k-m-1] - u[k-m]) / dt`` (the derivative of the linear
+  interpolation, right-sided at whole samples);
+- C and D entries act on the output equation directly.
+
+All parameters are propagated together as one forcing array by :func:`sysid.models.propagate`
+(block-Toeplitz, vectorised), i.e. one "simulation" with ``n_theta`` right-hand sides instead
+of ``n_theta`` finite-difference simulations. ``TimeFitResult.n_jacobian_evaluations`` and
+``elapsed`` report the cost; the benchmark compares with finite differences.
+
+Accuracy: the information matrix ``M = sum_k S[k]^T R^-1 S[k]`` (S: output sensitivities,
+nuisance marginalised as above) is formed from the whitened Jacobian (rows divided by
+``sigma_j``) by :func:`sysid.identify.statistics.parameter_statistics`:
+``CR_i = sqrt((M^-1)_ii)``, insensitivity ``1/sqrt(M_ii)``, correlations. Biases and initial
+states get their bounds from the joint information matrix (structure parameters plus
+nuisance). No "fudge factor" for coloured residuals is applied (Jategaonkar 2015 sec. 4.19
+discusses one); with white measurement noise the bounds are the Cramer-Rao bounds.
+
+Model reduction: the same :func:`sysid.identify.reduction.stepwise_reduction` as the
+frequency-domain fit, with the cost measure ``L`` above (after re-estimating R): removing a
+parameter that is truly zero raises ``L`` by ``chi^2_1 / 2`` (likelihood ratio), so the
+default ``max_cost_increase`` is ``chi^2_1(0.999) / 2 = 5.41``: a removal is undone when the
+likelihood-ratio test finds the parameter significant at the 0.1 % level.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+import scipy.linalg
+import scipy.optimize
+import xarray as xr
+
+from sysid.errors import IdentificationError, InputDataError
+from sysid.identify.reduction import GUIDELINES, FitOutcome, ReductionResult, stepwise_reduction
+from sysid.identify.statistics import ParameterStatistics, parameter_statistics
+from sysid.models import LinearStructure, propagate
+
+__all__ = [
+    "MAX_COST_INCREASE",
+    "TimeRecord",
+    "prepare_records",
+    "OutputErrorModel",
+    "TimeFitResult",
+    "identify_time_domain",
+]
+
+#: Default largest accepted rise of the negative log-likelihood per removed parameter in the
+#: model reduction: half the 99.9 % quantile of chi^2 with one degree of freedom.
+MAX_COST_INCREASE = 0.5 * 10.827566170662733
+#: Relative floor of the noise variances (times the variance of the measured perturbation):
+#: keeps the weights finite on noise-free data.
+R_FLOOR = 1e-14
+#: First seconds averaged as trim for a channel without a ``trim_<channel>`` attribute.
+TRIM_WINDOW = 1.0
+#: Simulated (whitened) values beyond this count as a diverged trial model.
+_HUGE = 1e100
+
+
+# --------------------------------------------------------------------------------------------
+# Data
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class TimeRecord:
+    """One manoeuvre prepared for the fit (perturbations about trim, analysis units).
+
+    Attributes
+    ----------
+    name : str
+    time : ndarray (N,)
+        s, uniform.
+    dt : float
+        Sample interval, s.
+    U : ndarray (N, n_input)
+        Inputs in the structure's input order, % from trim.
+    Z : ndarray (N, n_output)
+        Measured outputs (the fitted ones, in fit order), from trim.
+    trim_input, trim_output : ndarray
+        The trims subtracted (absolute, analysis units).
+    """
+
+    name: str
+    time: np.ndarray
+    dt: float
+    U: np.ndarray
+    Z: np.ndarray
+    trim_input: np.ndarray
+    trim_output: np.ndarray
+
+
+def _trim_of(ds: xr.Dataset, channel: str) -> float:
+    """``trim_<channel>`` attribute, else the mean of the first :data:`TRIM_WINDOW` s."""
+    key = f"trim_{channel}"
+    if key in ds.attrs:
+        try:
+            return float(ds.attrs[key])
+        except (TypeError, ValueError):
+            raise InputDataError(f"manoeuvre {ds.attrs.get('maneuver', '?')!r}: attribute "
+                                 f"{key} = {ds.attrs[key]!r} is not a number") from None
+    t = np.asarray(ds["time"].values, float)
+    first = np.asarray(ds[channel].values, float)[t <= t[0] + TRIM_WINDOW]
+    return float(first.mean())
+
+
+def fitted_outputs(records: Sequence[xr.Dataset], structure: LinearStructure,
+                   outputs: Sequence[str] | None = None) -> tuple[str, ...]:
+    """The outputs to fit: ``outputs``, or every structure output present in all records."""
+    if outputs is None:
+        outs = [o for o in structure.outputs if all(o in r.data_vars for r in records)]
+        if not outs:
+            raise InputDataError(f"no output of structure {structure.name!r} "
+                                 f"({list(structure.outputs)}) is measured in every record")
+        return tuple(outs)
+    outs = tuple(str(o) for o in outputs)
+    unknown = [o for o in outs if o not in structure.outputs]
+    if unknown:
+        raise InputDataError(f"outputs {unknown} are not outputs of structure "
+                             f"{structure.name!r} ({list(structure.outputs)})")
+    return outs
+
+
+def prepare_records(records: Sequence[xr.Dataset], structure: LinearStructure,
+                    outputs: Sequence[str]) -> list[TimeRecord]:
+    """Check the time histories and turn them into perturbation arrays.
+
+    Raises :class:`~sysid.errors.InputDataError` naming the manoeuvre and channel when an
+    input or output is missing, not finite, or the time grid is not uniform.
+    """
+    from sysid.io import validate_time_history
+
+    if isinstance(records, xr.Dataset):
+        records = [records]
+    if not len(records):
+        raise InputDataError("identify_time_domain: no records given")
+    out = []
+    for i, ds in enumerate(records):
+        name = str(ds.attrs.get("maneuver", f"record_{i}"))
+        dt = validate_time_history(ds, list(structure.inputs) + list(outputs), name=name)
+        t = np.asarray(ds["time"].values, float)
+        if len(t) < 3:
+            raise InputDataError(f"manoeuvre {name!r}: needs at least 3 samples")
+        tin = np.array([_trim_of(ds, c) for c in structure.inputs])
+        tout = np.array([_trim_of(ds, o) for o in outputs])
+        U = np.stack([np.asarray(ds[c].values, float) for c in structure.inputs], 1) - tin
+        Z = np.stack([np.asarray(ds[o].values, float) for o in outputs], 1) - tout
+        out.append(TimeRecord(name, t, float(dt), U, Z, tin, tout))
+    names = [r.name for r in out]
+    if len(set(names)) != len(names):
+        raise InputDataError(f"records have duplicate manoeuvre names {names}")
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# The output-error model: simulation, nuisance elimination, analytic sensitivities
+# --------------------------------------------------------------------------------------------
+
+
+def _delay_split(delay_samples: float) -> tuple[int, float]:
+    m = int(math.floor(delay_samples + 1e-12))
+    return m, max(delay_samples - m, 0.0)
+
+
+def _delayed(u: np.ndarray, delay_samples: float) -> tuple[np.ndarray, np.ndarray]:
+    """``u(t_n - d)`` by linear interpolation (the convention of :func:`sysid.models.simulate`)
+    and its derivative with respect to ``d`` in samples (right-sided at whole samples).
+
+    Returns ``(v, dv_dd)``, shapes (N,).
+    """
+    N = len(u)
+    m, f = _delay_split(delay_samples)
+    idx = np.arange(N) - m
+    a = u[np.clip(idx, 0, N - 1)]
+    b = u[np.clip(idx - 1, 0, N - 1)]
+    return (1.0 - f) * a + f * b, b - a
+
+
+@dataclass
+class _Group:
+    """B entries of one input fed with the same delayed signal."""
+
+    column: int  #: input index
+    rows: np.ndarray  #: bool (n_state,)
+    delay: float  #: s
+    free_delay: int  #: position in theta of the free delay parameter, -1 if none
+
+
+@dataclass
+class _Evaluation:
+    """Everything computed for one ``theta`` (arrays per record where listed)."""
+
+    theta: np.ndarray
+    residual: np.ndarray  #: weighted, projected, all records concatenated
+    errors: list  #: (N, p) unweighted residuals z - y
+    bias: list  #: (p,) per record (0 where not estimated)
+    x0: list  #: (n,) per record (NaN where not estimated)
+    jacobian: np.ndarray | None = None  #: projected, weighted (n_residual, n_theta)
+    sens: list = field(default_factory=list)  #: weighted sensitivities (N p, n_theta)
+    nuisance: list = field(default_factory=list)  #: weighted nuisance columns (N p, k)
+    kept: list = field(default_factory=list)  #: names of the estimated nuisance columns
+
+
+class OutputErrorModel:
+    """Residuals and analytic Jacobian of the output-error problem for one structure.
+
+    Parameters
+    ----------
+    structure : LinearStructure
+    records : list of TimeRecord
+    outputs : sequence of str
+        Fitted outputs (a subset of the structure's, in the records' ``Z`` column order).
+    biases, initial_state : bool
+        Estimate a bias per output / an initial state per record (variable projection).
+    """
+
+    def __init__(self, structure: LinearStructure, records: list[TimeRecord],
+                 outputs: Sequence[str], *, biases: bool = True, initial_state: bool = True):
+        self.structure = structure
+        self.records = records
+        self.outputs = tuple(outputs)
+        self.out_idx = np.array([structure.outputs.index(o) for o in self.outputs])
+        self.biases = bool(biases)
+        self.initial_state = bool(initial_state)
+        self.sigma = np.ones(len(self.outputs))
+        self.n_cost = 0
+        self.n_jac = 0
+        self._cache: _Evaluation | None = None
+        self._classify()
+
+    # -- parameters --------------------------------------------------------------------------
+
+    def _classify(self) -> None:
+        st = self.structure
+        self.kind = []  # per free parameter: ("A", i, j) / ("B", i, c) / ("C", o, j) / ...
+        delay_of = {int(k): j for j, k in enumerate(st.free_index)}
+        for j, k in enumerate(st.free_index):
+            par = st.parameters[k]
+            if par.matrix == "A":
+                self.kind.append(("A", st.states.index(par.row), st.states.index(par.column)))
+            elif par.matrix == "B":
+                self.kind.append(("B", st.states.index(par.row), st.inputs.index(par.column)))
+            elif par.matrix == "C":
+                self.kind.append(("C", st.outputs.index(par.row), st.states.index(par.column)))
+            elif par.matrix == "D":
+                self.kind.append(("D", st.outputs.index(par.row), st.inputs.index(par.column)))
+            else:
+                self.kind.append(("delay", delay_of[int(k)], st.inputs.index(par.column)))
+
+    def groups(self, tau: np.ndarray) -> list[_Group]:
+        """Input groups: one per free delay parameter (its entries), the other B entries of
+        each input grouped by their (fixed) delay value."""
+        st = self.structure
+        n, m = tau.shape
+        covered = np.zeros((n, m), dtype=bool)
+        out = []
+        pos = {int(k): j for j, k in enumerate(st.free_index)}
+        for k, rows, c in st._delay_entries:
+            if st.free_mask[k]:
+                mask = np.zeros(n, dtype=bool)
+                mask[rows] = True
+                covered[rows, c] = True
+                out.append(_Group(int(c), mask, float(tau[rows[0], c]), pos[int(k)]))
+        for c in range(m):
+            rest = ~covered[:, c]
+            for d in np.unique(tau[rest, c]):
+                out.append(_Group(c, rest & (tau[:, c] == d), float(d), -1))
+        return out
+
+    # -- discretisation ----------------------------------------------------------------------
+
+    def _discretise(self, A, Bg, dt, jacobian):
+        """``Phi, Gamma`` (exact ZOH) and, with ``jacobian``, ``Psi = int e^{As} ds`` and the
+        Frechet derivatives ``[dPhi, dGamma]`` (n, n+G) for every free A entry."""
+        n, G = Bg.shape
+        M = np.zeros((n + G, n + G))
+        M[:n, :n] = A * dt
+        M[:n, n:] = Bg * dt
+        E = scipy.linalg.expm(M)
+        out = {"Phi": E[:n, :n], "Gam": E[:n, n:]}
+        if jacobian:
+            MI = np.zeros((2 * n, 2 * n))
+            MI[:n, :n] = A * dt
+            MI[:n, n:] = np.eye(n) * dt
+            out["Psi"] = scipy.linalg.expm(MI)[:n, n:]
+            dA = []
+            for kind in self.kind:
+                if kind[0] == "A":
+                    dM = np.zeros_like(M)
+                    dM[kind[1], kind[2]] = dt
+                    dA.append(scipy.linalg.expm_frechet(M, dM, compute_expm=False)[:n])
+            out["dA"] = np.array(dA).reshape(len(dA), n, n + G)
+        return out
+
+    # -- evaluation --------------------------------------------------------------------------
+
+    def nuisance_names(self, record: TimeRecord) -> list[str]:
+        names = []
+        if self.biases:
+            names += [f"bias_{o}[{record.name}]" for o in self.outputs]
+        if self.initial_state:
+            names += [f"x0_{s}[{record.name}]" for s in self.structure.states]
+        return names
+
+    def evaluate(self, theta, jacobian: bool = False) -> _Evaluation:
+        """Simulate every record at ``theta``, eliminate the nuisance parameters, and (with
+        ``jacobian``) propagate the output sensitivities."""
+        theta = np.asarray(theta, dtype=float)
+        c = self._cache
+        if c is not None and np.array_equal(c.theta, theta) and (c.jacobian is not None
+                                                                 or not jacobian):
+            return c
+        st = self.structure
+        A, B, C, D, tau = st.matrices(theta)
+        groups = self.groups(tau)
+        Bg = np.stack([B[:, g.column] * g.rows for g in groups], axis=1)
+        Cf, Df = C[self.out_idx], D[self.out_idx]
+        disc = {}
+        ev = _Evaluation(theta.copy(), np.zeros(0), [], [], [])
+        res_parts, jac_parts = [], []
+        # A trial step may produce a violently unstable model: overflow is detected in
+        # _record (infinite residual), not warned about.
+        with np.errstate(over="ignore", invalid="ignore"):
+            for rec in self.records:
+                if rec.dt not in disc:
+                    disc[rec.dt] = self._discretise(A, Bg, rec.dt, jacobian)
+                out = self._record(rec, disc[rec.dt], groups, Cf, Df, jacobian, ev)
+                res_parts.append(out[0])
+                if jacobian:
+                    jac_parts.append(out[1])
+        ev.residual = np.concatenate(res_parts)
+        if jacobian:
+            ev.jacobian = np.vstack(jac_parts)
+            self.n_jac += 1
+        self._cache = ev
+        return ev
+
+    def _record(self, rec: TimeRecord, disc, groups, Cf, Df, jacobian, ev: _Evaluation):
+        """Residuals (and projected Jacobian) of one record; appends its errors, nuisance
+        estimates and sensitivities to ``ev``."""
+        N, p, n = len(rec.time), len(self.outputs), self.structure.A0.shape[0]
+        sig = self.sigma
+        Phi, Gam = disc["Phi"], disc["Gam"]
+        VV = [_delayed(rec.U[:, g.column], g.delay / rec.dt) for g in groups]
+        V = np.stack([v for v, _ in VV], axis=1)  # (N, G)
+        Xu = propagate(Phi, V @ Gam.T)
+        Yu = Xu @ Cf.T + rec.U @ Df.T
+        target = ((rec.Z - Yu) / sig).ravel()
+        # Nuisance columns (whitened): biases first, then initial states.
+        cols, names = [], self.nuisance_names(rec)
+        Xo = None
+        if self.biases:
+            Bc = np.zeros((N, p, p))
+            Bc[:, np.arange(p), np.arange(p)] = 1.0 / sig
+            cols.append(Bc.reshape(N * p, p))
+        if self.initial_state:
+            Xo = propagate(Phi, np.zeros((N, n, n)), np.eye(n), block=8)  # Phi^k
+            Yo = np.einsum("oj,kji->koi", Cf, Xo) / sig[None, :, None]
+            cols.append(Yo.reshape(N * p, n))
+        bias = np.zeros(p)
+        x0 = np.full(n, np.nan)
+        x = Xu
+        if not all(np.all(np.abs(a) < _HUGE) for a in [target, *cols]):
+            # The trial model diverged (overflow): an infinite residual makes the trust-region
+            # solver shrink its step (scipy's trf treats non-finite residuals that way).
+            ev.errors.append(np.full((N, p), np.inf))
+            ev.bias.append(np.full(p, np.nan))
+            ev.x0.append(x0)
+            return np.full(N * p, np.inf), (np.zeros((N * p, len(self.kind)))
+                                            if jacobian else None)
+        if cols:
+            Nm = np.hstack(cols)
+            keep, L = _independent_columns(Nm)
+            K = Nm[:, keep]
+            coef = _chol_solve(L, K.T @ target)
+            resid = target - K @ coef
+            full = np.zeros(Nm.shape[1])
+            full[keep] = coef
+            if self.biases:
+                bias = full[:p]
+            if self.initial_state:
+                x0 = np.where(keep[-n:], full[-n:], np.nan)
+                x = Xu + Xo @ np.nan_to_num(x0)
+        else:
+            K, L, keep = np.zeros((N * p, 0)), np.zeros((0, 0)), np.zeros(0, bool)
+            Nm = K
+            resid = target
+        e = rec.Z - (x @ Cf.T + rec.U @ Df.T + bias)
+        ev.errors.append(e)
+        ev.bias.append(bias)
+        ev.x0.append(x0)
+        if not jacobian:
+            return resid, None
+        S = self._sensitivities(rec, disc, groups, V, np.stack([d for _, d in VV], 1), x,
+                                Cf) / sig[None, :, None]
+        S = S.reshape(N * p, -1)
+        ev.sens.append(S)
+        ev.nuisance.append(K)
+        ev.kept.append([nm for nm, k in zip(names, keep) if k])
+        # Kaufman's variable-projection Jacobian of r = (z - y)/sigma (projected).
+        G = -(S - K @ _chol_solve(L, K.T @ S)) if K.shape[1] else -S
+        return resid, G
+
+    def _sensitivities(self, rec, disc, groups, V, dV, x, Cf):
+        """Output sensitivities ``dy/dtheta`` at fixed nuisance, shape (N, p, n_theta)."""
+        N, n = x.shape
+        P = len(self.kind)
+        W = np.zeros((N, n, P))
+        XV = np.hstack([x, V])
+        a_pos = [j for j, k in enumerate(self.kind) if k[0] == "A"]
+        if a_pos:
+            W[:, :, a_pos] = np.einsum("pij,kj->kip", disc["dA"], XV, optimize=True)
+        extra = []  # C / D parameters act on the output equation
+        for j, kind in enumerate(self.kind):
+            if kind[0] == "B":
+                g = _group_of(groups, kind[1], kind[2])
+                W[:, :, j] = np.outer(V[:, g], disc["Psi"][:, kind[1]])
+            elif kind[0] == "delay":
+                g = next(k for k, gr in enumerate(groups) if gr.free_delay == kind[1])
+                W[:, :, j] = np.outer(dV[:, g] / rec.dt, disc["Gam"][:, g])
+            elif kind[0] in "CD":
+                extra.append((j, kind))
+        Sx = propagate(disc["Phi"], W, block=8) if P else np.zeros((N, n, 0))
+        S = np.einsum("oj,kjp->kop", Cf, Sx, optimize=True)
+        for j, (kind, o, c) in extra:
+            hit = np.flatnonzero(self.out_idx == o)
+            if len(hit):
+                S[:, hit[0], j] += x[:, c] if kind == "C" else rec.U[:, c]
+        return S
+
+    # -- interface for least_squares ---------------------------------------------------------
+
+    def residuals(self, theta):
+        self.n_cost += 1
+        return self.evaluate(theta).residual
+
+    def jacobian(self, theta):
+        return self.evaluate(theta, jacobian=True).jacobian
+
+    def set_sigma(self, sigma) -> None:
+        self.sigma = np.asarray(sigma, dtype=float)
+        self._cache = None
+
+
+def _group_of(groups: list[_Group], row: int, column: int) -> int:
+    for k, g in enumerate(groups):
+        if g.column == column and g.rows[row]:
+            return k
+    raise IdentificationError(f"no input group holds B entry ({row}, {column})")
+
+
+def _independent_columns(Nm: np.ndarray, rtol: float = 1e-7) -> tuple[np.ndarray, np.ndarray]:
+    """Columns of ``Nm`` (N x k) not numerically in the span of the columns before them, and
+    the Cholesky factor of the Gram matrix of the kept columns.
+
+    Ordered (unpivoted) Cholesky of the column-normalised Gram matrix ``Nm^T Nm``: column j
+    is dependent when its residual after projection on the kept earlier ones is below
+    ``rtol`` of its norm. Biases come first, so an initial state acting like a bias is the one
+    dropped. The small k x k Gram matrix replaces a QR of the tall N x k matrix (a BLAS-3
+    product, many times faster); the nuisance columns are well scaled, so the squared
+    condition number costs no accuracy that matters here.
+
+    Returns
+    -------
+    keep : ndarray of bool (k,)
+    L : ndarray (k_kept, k_kept)
+        Lower Cholesky factor of ``Nm[:, keep]^T Nm[:, keep]``.
+    """
+    k = Nm.shape[1]
+    Gram = Nm.T @ Nm
+    d = np.sqrt(np.maximum(np.diag(Gram), 0.0))
+    keep = np.zeros(k, dtype=bool)
+    idx: list[int] = []
+    Ln = np.zeros((0, 0))  # Cholesky of the normalised Gram of the kept columns
+    for j in range(k):
+        if d[j] == 0.0:
+            continue
+        g = Gram[idx, j] / (d[idx] * d[j]) if idx else np.zeros(0)
+        w = scipy.linalg.solve_triangular(Ln, g, lower=True) if idx else g
+        r2 = 1.0 - float(w @ w)
+        if r2 <= rtol ** 2:
+            continue
+        m = len(idx)
+        Lnew = np.zeros((m + 1, m + 1))
+        Lnew[:m, :m] = Ln
+        Lnew[m, :m] = w
+        Lnew[m, m] = math.sqrt(r2)
+        Ln, keep[j] = Lnew, True
+        idx.append(j)
+    return keep, Ln * d[idx][:, None]
+
+
+def _chol_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve ``(L L^T) x = b``."""
+    return scipy.linalg.cho_solve((L, True), b)
+
+
+# --------------------------------------------------------------------------------------------
+# Maximum-likelihood relaxation: LM with R fixed, then the R update
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Converged:
+    structure: LinearStructure
+    theta: np.ndarray
+    R: np.ndarray  #: noise variances of the fitted outputs
+    cost: float  #: negative log-likelihood L
+    statistics: ParameterStatistics
+    evaluation: _Evaluation
+    outer_iterations: int
+    nfev: int
+    history: list  #: (cost, max relative R change) per outer iteration
+    outputs: tuple = ()  #: fitted outputs
+
+
+def _noise_variance(errors: list, floor: np.ndarray) -> np.ndarray:
+    """ML estimate ``R_jj = mean over all samples of e_j^2``, floored."""
+    E = np.vstack(errors)
+    return np.maximum(np.mean(E ** 2, axis=0), floor)
+
+
+def _likelihood(errors: list, R: np.ndarray) -> float:
+    """``L = 1/2 sum e^T R^-1 e + N/2 sum ln R_jj`` (no 2 pi constant)."""
+    E = np.vstack(errors)
+    return float(0.5 * np.sum(E ** 2 / R) + 0.5 * len(E) * np.sum(np.log(R)))
+
+
+def _solve(model: OutputErrorModel, theta0, *, tol: float, max_nfev: int | None):
+    lo, hi = model.structure.bounds
+    span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+    theta0 = np.clip(np.asarray(theta0, float), lo + 1e-9 * span, hi - 1e-9 * span)
+    return scipy.optimize.least_squares(model.residuals, theta0, jac=model.jacobian,
+                                        bounds=(lo, hi), method="trf", x_scale="jac",
+                                        ftol=tol, xtol=tol, gtol=tol, max_nfev=max_nfev)
+
+
+def _converge(structure: LinearStructure, records: list[TimeRecord], outputs, theta0, *,
+              R0: np.ndarray | None, biases: bool, initial_state: bool, tol: float,
+              max_nfev: int | None, max_outer: int, r_tol: float, cost_tol: float,
+              counter: dict) -> _Converged:
+    """Relaxation (Jategaonkar 2015 sec. 4.6): LM on theta with R fixed, then R from the
+    residuals, until R and the cost settle."""
+    model = OutputErrorModel(structure, records, outputs, biases=biases,
+                             initial_state=initial_state)
+    floor = R_FLOOR * np.maximum(np.var(np.vstack([r.Z for r in records]), axis=0), 1e-12)
+    theta = np.asarray(theta0, float).copy()
+    if R0 is None:  # start weights: the residuals of the start model (unit weights first)
+        R0 = _noise_variance(model.evaluate(theta).errors, floor)
+    R = np.asarray(R0, float).copy()
+    history, nfev, cost, outer = [], 0, math.inf, 0
+    for outer in range(1, max_outer + 1):
+        model.set_sigma(np.sqrt(R))
+        if len(theta):
+            res = _solve(model, theta, tol=tol, max_nfev=max_nfev)
+            theta, nfev = res.x, nfev + res.nfev
+        ev = model.evaluate(theta)
+        R_new = _noise_variance(ev.errors, floor)
+        change = float(np.max(np.abs(R_new / R - 1.0)))
+        new_cost = _likelihood(ev.errors, R_new)
+        history.append((new_cost, change))
+        done = change < r_tol and abs(new_cost - cost) <= cost_tol * max(abs(new_cost), 1.0)
+        R, cost = R_new, new_cost
+        if done:
+            break
+    model.set_sigma(np.sqrt(R))
+    ev = model.evaluate(theta, jacobian=True)
+    if len(theta):
+        stats = parameter_statistics(ev.jacobian, theta, structure.free_names)
+    else:
+        stats = parameter_statistics(np.zeros((1, 0)), theta, ())
+    counter["cost"] += model.n_cost
+    counter["jacobian"] += model.n_jac
+    counter["outer"] += outer
+    return _Converged(structure, theta, R, cost, stats, ev, outer, nfev, history,
+                      tuple(outputs))
+
+
+def _joint_statistics(conv: _Converged) -> ParameterStatistics:
+    """Statistics of structure parameters and nuisance parameters together, from the joint
+    (block) Jacobian of all records (for the bounds of biases and initial states)."""
+    ev = conv.evaluation
+    widths = [nm.shape[1] for nm in ev.nuisance]
+    blocks = []
+    for k, (S, Nm) in enumerate(zip(ev.sens, ev.nuisance)):
+        row = [S]
+        for j, w in enumerate(widths):
+            row.append(Nm if j == k else np.zeros((len(S), w)))
+        blocks.append(np.hstack(row))
+    G = np.vstack(blocks)
+    names = list(conv.structure.free_names) + [n for kept in ev.kept for n in kept]
+    values = np.concatenate([conv.theta] + [_nuisance_values(conv, k)
+                                            for k in range(len(ev.kept))])
+    return parameter_statistics(G, values, names)
+
+
+def _nuisance_values(conv: _Converged, k: int) -> np.ndarray:
+    ev = conv.evaluation
+    out = []
+    for name in ev.kept[k]:
+        kind, rest = name.split("_", 1)
+        channel = rest.split("[", 1)[0]
+        if kind == "bias":
+            out.append(ev.bias[k][list(conv.outputs).index(channel)])
+        else:
+            out.append(ev.x0[k][list(conv.structure.states).index(channel)])
+    return np.array(out, float)
+
+
+# --------------------------------------------------------------------------------------------
+# Result
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class TimeFitResult:
+    """Outcome of :func:`identify_time_domain` (fields mirror
+    :class:`sysid.identify.frequency_domain.FrequencyFitResult`).
+
+    Attributes
+    ----------
+    model : xr.Dataset
+        Model Dataset (docs/data_model.md), ``method = "time_domain"``; extra variables
+        ``noise_variance`` (output), ``output_rms_error`` (output), ``bias`` and
+        ``bias_cramer_rao`` (record, output), ``initial_state`` and
+        ``initial_state_cramer_rao`` (record, state; NaN where not estimated).
+    structure : LinearStructure
+        Final (reduced) structure; ``theta`` its free values.
+    statistics : ParameterStatistics
+        Accuracy of the free parameters (nuisance parameters marginalised).
+    nuisance_statistics : ParameterStatistics
+        Joint statistics of structure and nuisance parameters (names ``bias_<out>[<record>]``,
+        ``x0_<state>[<record>]``).
+    cost : float
+        Negative log-likelihood ``L`` at the optimum (R re-estimated).
+    J_rms : float
+        ``sqrt(mean of e^2 over samples and outputs)`` with unit weights (ft/s, deg/s, deg).
+    noise_variance : dict
+        ``output -> R_jj`` (analysis units squared).
+    output_rms_error : dict
+        ``output -> rms residual``.
+    biases : xr.DataArray
+        (record, output), analysis units.
+    records, outputs : tuple of str
+        Manoeuvres used, outputs fitted.
+    reduction : ReductionResult or None
+    start : str
+        ``"model"``, ``"values"`` or ``"structure"``.
+    restart : dict
+        Cost of the first convergence and of the restart from the perturbed solution (empty
+        when ``restart_fraction == 0``).
+    n_cost_evaluations, n_jacobian_evaluations, n_outer_iterations : int
+    elapsed : float
+        Wall time, s.
+    """
+
+    model: xr.Dataset
+    structure: LinearStructure
+    theta: np.ndarray
+    statistics: ParameterStatistics
+    nuisance_statistics: ParameterStatistics
+    cost: float
+    J_rms: float
+    noise_variance: dict
+    output_rms_error: dict
+    biases: xr.DataArray
+    records: tuple
+    outputs: tuple
+    reduction: ReductionResult | None
+    start: str
+    restart: dict
+    n_cost_evaluations: int
+    n_jacobian_evaluations: int
+    n_outer_iterations: int
+    elapsed: float
+    full_statistics: ParameterStatistics | None = None
+    initial_structure: LinearStructure | None = None
+
+    @property
+    def J(self) -> float:
+        """The cost (negative log-likelihood), named like the frequency-domain result."""
+        return self.cost
+
+    @property
+    def unidentifiable(self) -> tuple[str, ...]:
+        names = set(self.statistics.unidentifiable)
+        if self.full_statistics is not None:
+            names |= set(self.full_statistics.unidentifiable)
+        return tuple(sorted(names))
+
+    def value(self, name: str) -> float:
+        """Final value of any parameter (free, fixed or removed)."""
+        return float(self.model["value"].sel(parameter=name))
+
+    def bias(self, record: str, output: str) -> tuple[float, float]:
+        """``(bias, Cramer-Rao bound)`` of one output in one record."""
+        m = self.model
+        return (float(m["bias"].sel(record=record, output=output)),
+                float(m["bias_cramer_rao"].sel(record=record, output=output)))
+
+    def table(self) -> str:
+        """Derivative table with Cramer-Rao bounds (paper Tables 2-3), delays, noise, biases."""
+        m = self.model
+        lines = [f"Time-domain identification ({self.structure.name}), output error on "
+                 f"{len(self.records)} record(s): {', '.join(self.records)}; start: {self.start}",
+                 f"{'parameter':<12}{'value':>14}{'CR':>12}{'CR %':>9}{'I %':>9}"]
+        free = m["free"].values.astype(bool)
+        for k, name in enumerate(m["parameter"].values):
+            if not free[k]:
+                continue
+            flag = "" if bool(m["identifiable"].values[k]) else "  unidentifiable"
+            lines.append(f"{str(name):<12}{float(m['value'][k]):>14.5g}"
+                         f"{float(m['cramer_rao'][k]):>12.4g}"
+                         f"{_pct(float(m['cramer_rao_percent'][k])):>9}"
+                         f"{_pct(float(m['insensitivity_percent'][k])):>9}{flag}")
+        delays = [(str(n), float(m["value"][k])) for k, n in enumerate(m["parameter"].values)
+                  if str(m["matrix"].values[k]) == "delay" and free[k]]
+        if delays:
+            lines.append("delays: " + ", ".join(f"{n} = {v * 1000:.1f} ms" for n, v in delays))
+        lines.append("noise std (from residuals): " + ", ".join(
+            f"{o} {math.sqrt(v):.4g}" for o, v in self.noise_variance.items()))
+        lines.append("output biases (Cramer-Rao bound):")
+        for rec in self.records:
+            lines.append(f"  {rec}: " + ", ".join(
+                f"{o} {self.bias(rec, o)[0]:.4g} ({self.bias(rec, o)[1]:.2g})"
+                for o in self.outputs))
+        lines.append(f"cost (neg. log-likelihood) = {self.cost:.3f}, J_rms = {self.J_rms:.4f}")
+        if self.reduction is not None and self.reduction.steps:
+            lines.append("model reduction:")
+            lines.append(self.reduction.table())
+        return "\n".join(lines)
+
+
+def _pct(x: float) -> str:
+    return "inf" if not np.isfinite(x) else f"{x:.1f}"
+
+
+def _perturb(theta, structure: LinearStructure, seed: int, fraction: float) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    lo, hi = structure.bounds
+    scale = np.where(np.abs(theta) > 0, np.abs(theta), 1e-3)
+    return np.clip(theta + fraction * scale * rng.uniform(-1.0, 1.0, theta.shape), lo, hi)
+
+
+# --------------------------------------------------------------------------------------------
+# Entry point
+# --------------------------------------------------------------------------------------------
+
+
+def identify_time_domain(records, structure: LinearStructure, *,
+                         start: xr.Dataset | np.ndarray | None = None,
+                         outputs: Sequence[str] | None = None, biases: bool = True,
+                         initial_state: bool = True, reduce: bool = True,
+                         cr_max: float = GUIDELINES["cr_max"],
+                         insensitivity_max: float = GUIDELINES["insensitivity_max"],
+                         max_cost_increase: float = MAX_COST_INCREASE,
+                         protected: Sequence[str] = (), tol: float = 1e-8,
+                         max_nfev: int | None = None, max_outer: int = 20,
+                         r_tol: float = 1e-3, cost_tol: float = 1e-7,
+                         restart_fraction: float = 0.0, seed: int = 0, quiet: bool = True,
+                         progress=None) -> TimeFitResult:
+    """Identify a structure from time histories by maximum-likelihood output error.
+
+    Parameters
+    ----------
+    records : xr.Dataset or sequence of xr.Dataset
+        Time histories (docs/data_model.md): controls ``lon lat col ped`` (%), measurements
+        in analysis units, absolute, with ``trim_<channel>`` attributes; all are fitted at
+        once (one set of structure parameters, nuisance parameters per record).
+    structure : LinearStructure
+        Model structure; its free parameters are estimated.
+    start : xr.Dataset or array, optional
+        Start values: a model Dataset (e.g. the frequency-domain result or the truth model's
+        linearisation) or the free-parameter vector; default the structure's values.
+    outputs : sequence of str, optional
+        Fitted outputs (default: every structure output present in all records).
+    biases, initial_state : bool
+        Estimate a bias per output and an initial state per record (nuisance parameters,
+        eliminated by variable projection; see the module docstring).
+    reduce : bool
+        Stepwise model reduction (:func:`sysid.identify.reduction.stepwise_reduction`) with
+        ``cr_max`` (20 %), ``insensitivity_max`` (10 %) and ``max_cost_increase``
+        (:data:`MAX_COST_INCREASE`, in units of the negative log-likelihood), never removing
+        ``protected``.
+    tol : float
+        ``ftol = xtol = gtol`` of :func:`scipy.optimize.least_squares` (``"trf"``).
+    max_nfev : int, optional
+        Limit on cost evaluations per LM solve.
+    max_outer, r_tol, cost_tol
+        Relaxation: at most ``max_outer`` (LM solve, R update) cycles; stop when every
+        ``R_jj`` changes by less than ``r_tol`` (relative) and the cost by less than
+        ``cost_tol`` (relative).
+    restart_fraction, seed
+        When > 0, the final fit is restarted from its solution perturbed by
+        ``+-restart_fraction`` (relative, seeded) and the better minimum kept.
+    quiet, progress
+        Per-stage lines on stderr unless quiet.
+
+    Returns
+    -------
+    TimeFitResult
+    """
+    from sysid.util import Progress
+
+    t_start = time.perf_counter()
+    progress = progress or Progress(quiet=quiet)
+    if isinstance(records, xr.Dataset):
+        records = [records]
+    records = list(records)
+    if not records:
+        raise InputDataError("identify_time_domain: no records given")
+    outs = fitted_outputs(records, structure, outputs)
+    recs = prepare_records(records, structure, outs)
+    if len(structure.free_index) == 0:
+        raise IdentificationError(f"structure {structure.name!r} has no free parameters")
+    if start is None:
+        theta0, start_kind = structure.theta0, "structure"
+    elif isinstance(start, xr.Dataset):
+        theta0, start_kind = structure.values_from_model(start), "model"
+    else:
+        theta0, start_kind = np.asarray(start, float), "values"
+        if theta0.shape != structure.theta0.shape:
+            raise InputDataError(f"start has {theta0.size} values; structure "
+                                 f"{structure.name!r} has {structure.theta0.size} free "
+                                 f"parameters {list(structure.free_names)}")
+    counter = {"cost": 0, "jacobian": 0, "outer": 0}
+    kw = dict(biases=biases, initial_state=initial_state, tol=tol, max_nfev=max_nfev,
+              max_outer=max_outer, r_tol=r_tol, cost_tol=cost_tol, counter=counter)
+
+    def converge(st, th0, R0):
+        return _converge(st, recs, outs, th0, R0=R0, **kw)
+
+    n_samples = sum(len(r.time) for r in recs)
+    with progress.stage(f"time-domain output error: {len(structure.free_index)} parameters, "
+                        f"{len(recs)} record(s), {n_samples} samples x {len(outs)} outputs"):
+        full = converge(structure, theta0, None)
+        progress.message(f"[sysid]   converged: cost {full.cost:.3f} after "
+                         f"{full.outer_iterations} R updates ({full.nfev} LM evaluations)")
+    reduction, final = None, full
+    if reduce:
+        def refit(removed, previous):
+            prev: _Converged = previous.payload
+            st = structure.fix(removed, 0.0)
+            vals = dict(zip(prev.structure.free_names, prev.theta))
+            c = converge(st, np.array([vals[n] for n in st.free_names]), prev.R)
+            return FitOutcome(c.cost, c.statistics, c)
+
+        with progress.stage("model reduction"):
+            reduction = stepwise_reduction(
+                refit, FitOutcome(full.cost, full.statistics, full), cr_max=cr_max,
+                insensitivity_max=insensitivity_max, max_cost_increase=max_cost_increase,
+                protected=protected, progress=progress)
+        final = reduction.final.payload
+    restart = {}
+    if restart_fraction > 0:
+        again = converge(final.structure, _perturb(final.theta, final.structure, seed,
+                                                   restart_fraction), final.R)
+        restart = {"cost_first": final.cost, "cost_restart": again.cost,
+                   "fraction": restart_fraction, "seed": seed}
+        if again.cost < final.cost:
+            final = again
+        restart["same_minimum"] = bool(abs(restart["cost_first"] - restart["cost_restart"])
+                                       <= 1e-6 * max(abs(final.cost), 1.0))
+    joint = _joint_statistics(final)
+    E = np.vstack(final.evaluation.errors)
+    J_rms = float(np.sqrt(np.mean(E ** 2)))
+    elapsed = time.perf_counter() - t_start
+    model = _model_dataset(final, joint, recs, outs, reduction, start_kind, restart, counter,
+                           elapsed, records, J_rms)
+    rms = np.sqrt(np.mean(E ** 2, axis=0))
+    return TimeFitResult(
+        model, final.structure, final.theta, final.statistics, joint, final.cost, J_rms,
+        dict(zip(outs, final.R.tolist())), dict(zip(outs, rms.tolist())), model["bias"],
+        tuple(r.name for r in recs), outs, reduction, start_kind, restart, counter["cost"],
+        counter["jacobian"], counter["outer"], elapsed, full_statistics=full.statistics,
+        initial_structure=structure)
+
+
+def _model_dataset(final: _Converged, joint: ParameterStatistics, recs, outs, reduction,
+                   start_kind, restart, counter, elapsed, datasets, J_rms) -> xr.Dataset:
+    st = final.structure
+    ev = final.evaluation
+    attrs = {
+        "method": "time_domain",
+        "cost": final.cost,
+        "cost_definition": "negative log-likelihood 1/2 sum e^T R^-1 e + N/2 sum ln R_jj",
+        "J_rms": float(J_rms),
+        "records": ",".join(r.name for r in recs),
+        "n_records": len(recs),
+        "n_samples": int(sum(len(r.time) for r in recs)),
+        "fitted_outputs": ",".join(outs),
+        "noise_variance": json.dumps(dict(zip(outs, final.R.tolist()))),
+        "estimator": "maximum-likelihood output error (relaxation: LM with R fixed, R update)",
+        "nuisance": "bias per output and initial state per record (variable projection)",
+        "sensitivities": "analytic (ZOH sensitivity equations, expm Frechet derivatives)",
+        "cramer_rao_convention": "H = sum S^T R^-1 S (nuisance marginalised), "
+                                 "CR = sqrt(diag H^-1)",
+        "start": start_kind,
+        "optimizer": "scipy.optimize.least_squares(trf)",
+        "restart": json.dumps(restart),
+        "outer_iterations": int(final.outer_iterations),
+        "n_cost_evaluations": int(counter["cost"]),
+        "n_jacobian_evaluations": int(counter["jacobian"]),
+        "elapsed_s": float(elapsed),
+        "reduction": int(reduction is not None),
+        "reduction_steps": json.dumps([s.as_dict() for s in reduction.steps]
+                                      if reduction is not None else []),
+        "removed_parameters": ",".join(reduction.removed) if reduction is not None else "",
+    }
+    for key in ("flight_condition", "campaign"):
+        if key in datasets[0].attrs and isinstance(datasets[0].attrs[key], (str, int, float)):
+            attrs[f"data_{key}"] = datasets[0].attrs[key]
+    ds = st.to_dataset(final.theta, final.statistics, attrs=attrs)
+    # Trim reference: the first record's (the perturbations were taken about it).
+    tin = dict(zip(st.inputs, recs[0].trim_input))
+    ds["trim_input"].values = np.array([tin[c] for c in st.inputs])
+    tout = dict(zip(outs, recs[0].trim_output))
+    ds["trim_output"].values = np.array([tout.get(o, float(v)) for o, v in
+                                         zip(st.outputs, ds["trim_output"].values)])
+    names = [r.name for r in recs]
+    cr = dict(zip(joint.names, joint.cramer_rao))
+    b_cr = np.array([[cr.get(f"bias_{o}[{r}]", np.nan) for o in outs] for r in names])
+    x0_cr = np.array([[cr.get(f"x0_{s}[{r}]", np.nan) for s in st.states] for r in names])
+    full_out = list(st.outputs)
+
+    def pad(rows):  # (k, n_fitted) -> (k, n_structure_outputs), NaN where not fitted
+        return np.array([[row[outs.index(o)] if o in outs else np.nan for o in full_out]
+                         for row in rows])
+
+    E = np.vstack(ev.errors)
+    ds = ds.assign_coords(record=names)
+    ds["noise_variance"] = ("output", pad([final.R])[0],
+                            {"long_name": "measurement-noise variance R (from residuals)"})
+    ds["output_rms_error"] = ("output", pad([np.sqrt(np.mean(E ** 2, axis=0))])[0],
+                              {"long_name": "rms output residual"})
+    ds["bias"] = (("record", "output"), pad(np.array(ev.bias)),
+                  {"long_name": "output bias (nuisance)"})
+    ds["bias_cramer_rao"] = (("record", "output"), pad(b_cr),
+                             {"long_name": "Cramer-Rao bound of the output bias"})
+    ds["initial_state"] = (("record", "state"), np.array(ev.x0),
+                           {"long_name": "initial state perturbation (nuisance); NaN: not "
+                                         "estimated"})
+    ds["initial_state_cramer_rao"] = (("record", "state"), x0_cr,
+                                      {"long_name": "Cramer-Rao bound of the initial state"})
+    return ds
