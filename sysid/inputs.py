@@ -131,7 +131,9 @@ def frequency_sweep(axis: str, *, omega_min: float = 0.3, omega_max: float = 20.
                     duration: float = 90.0, amplitude: float = 10.0, dt: float = 0.01,
                     lead_in: float = 3.0, lead_out: float = 3.0,
                     long_period_cycles: float = 2.0, C1: float = 4.0, C2: float = 0.0187,
-                    perturbation: float = 0.0, seed: int | None = None) -> xr.Dataset:
+                    perturbation: float = 0.0, seed: int | None = None,
+                    low_frequency_fraction: float = 1.0,
+                    full_amplitude_omega: float | None = None) -> xr.Dataset:
     """Tischler's automated frequency sweep on one control axis.
 
     Parameters
@@ -163,6 +165,13 @@ def frequency_sweep(axis: str, *, omega_min: float = 0.3, omega_max: float = 20.
         both ends of the sweep. Needs ``seed``.
     seed
         Seed of the perturbation.
+    low_frequency_fraction, full_amplitude_omega
+        Amplitude schedule: the amplitude is ``low_frequency_fraction * amplitude`` at
+        ``omega_min`` and grows linearly in log-frequency to ``amplitude`` at
+        ``full_amplitude_omega`` (rad/s), constant above. This is what a pilot does on an
+        axis whose low-frequency response is large (a hingeless rotor's pitch and roll): keep
+        the attitude excursions bounded while the high-frequency response stays measurable.
+        Default: constant amplitude.
 
     Returns
     -------
@@ -204,7 +213,8 @@ def frequency_sweep(axis: str, *, omega_min: float = 0.3, omega_max: float = 20.
     x = np.zeros(n_total)
     phase = sweep_phase(t, omega_min=omega_min, omega_max=omega_max, t_dwell=t_dwell,
                         t_exp=t_exp, C1=C1, C2=C2)
-    x[n_in:n_in + n_sweep] = amplitude * np.sin(phase)
+    x[n_in:n_in + n_sweep] = amplitude * np.sin(phase) * _amplitude_schedule(
+        np.gradient(phase, dt), omega_min, low_frequency_fraction, full_amplitude_omega)
     if perturbation:
         g = rng(seed)
         noise = g.standard_normal(n_sweep)
@@ -219,10 +229,26 @@ def frequency_sweep(axis: str, *, omega_min: float = 0.3, omega_max: float = 20.
         "duration": duration, "amplitude": amplitude, "lead_in": lead_in,
         "lead_out": lead_out, "long_period_cycles": long_period_cycles, "C1": C1, "C2": C2,
         "t_dwell": t_dwell, "t_exp": t_exp,
+        "low_frequency_fraction": low_frequency_fraction,
+        "full_amplitude_omega": full_amplitude_omega or omega_min,
         "perturbation": perturbation, "seed": -1 if not perturbation else int(seed),
         "hold": "linear",
     }
     return _dataset({axis: _control_var(axis, x)}, dt, attrs)
+
+
+def _amplitude_schedule(omega: np.ndarray, omega_min: float, fraction: float,
+                        omega_full: float | None) -> np.ndarray:
+    """Relative amplitude at instantaneous frequency ``omega`` (see :func:`frequency_sweep`)."""
+    if omega_full is None or fraction == 1.0:
+        return np.ones_like(omega)
+    if not 0.0 < fraction <= 1.0 or omega_full <= omega_min:
+        raise InputDataError("amplitude schedule needs 0 < low_frequency_fraction <= 1 and "
+                             f"full_amplitude_omega > omega_min, got {fraction} and "
+                             f"{omega_full} rad/s")
+    position = np.log(np.clip(omega, omega_min, omega_full) / omega_min) / math.log(
+        omega_full / omega_min)
+    return fraction + (1.0 - fraction) * position
 
 
 def _samples_ceil(duration: float, dt: float) -> int:

@@ -293,3 +293,22 @@ def test_dryden_seeds_and_hover_floor():
     assert a.sizes["time"] == 1201 and a.time.values[-1] == pytest.approx(60.0)
     with pytest.raises(InputDataError, match="seed"):
         inputs.dryden_turbulence(10.0, dt=0.1, airspeed=10.0, altitude=50.0, seed=None)
+
+
+def test_sweep_amplitude_schedule_follows_instantaneous_frequency():
+    from sysid.inputs import frequency_sweep
+
+    full = frequency_sweep("lon", omega_min=0.2, omega_max=20.0, duration=90.0, amplitude=8.0,
+                           lead_in=0.0, lead_out=0.0, long_period_cycles=1.0)
+    shaped = frequency_sweep("lon", omega_min=0.2, omega_max=20.0, duration=90.0,
+                             amplitude=8.0, lead_in=0.0, lead_out=0.0, long_period_cycles=1.0,
+                             low_frequency_fraction=0.25, full_amplitude_omega=2.0)
+    t_dwell = shaped.attrs["t_dwell"]
+    dwell = shaped.time < t_dwell
+    # During the long-period cycle (omega = omega_min) the amplitude is the given fraction.
+    assert float(abs(shaped.lon.where(dwell)).max()) == pytest.approx(2.0, rel=1e-3)
+    # Once the sweep is past 2 rad/s both signals are identical.
+    omega = np.gradient(np.unwrap(np.angle(signal.hilbert(full.lon.values))), 0.01)
+    late = (shaped.time > t_dwell).values & (omega > 2.5)
+    late &= np.arange(late.size) < late.size - 200   # away from the Hilbert edge effect
+    np.testing.assert_allclose(shaped.lon.values[late], full.lon.values[late], atol=1e-12)

@@ -1,0 +1,50 @@
+"""``sysid simulate``: fly a flight-test campaign on the truth FMU."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "simulate",
+        help="fly a flight-test campaign (sweeps, 3211, 2311) on the truth FMU",
+        description="Fly a campaign on the truth helicopter FMU with secondary-axis "
+                    "stabilisation, sensor noise and turbulence; write one netCDF campaign file.",
+    )
+    p.add_argument("campaign", nargs="?", help="campaign TOML file (default: the built-in "
+                                               "hover campaign of the paper)")
+    p.add_argument("-o", "--output", required=True, help="campaign netCDF file to write")
+    p.add_argument("--speed", type=float, default=None,
+                   help="airspeed in kt for the built-in campaign (default hover)")
+    p.add_argument("--maneuvers", default="*", help="only manoeuvres matching this glob")
+    p.add_argument("--no-noise", action="store_true", help="no sensor noise or turbulence")
+    p.add_argument("--print-default", action="store_true",
+                   help="print the built-in campaign as TOML and exit (a template to edit)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    p.set_defaults(func=_simulate)
+
+
+def _simulate(args) -> int:
+    from sysid.errors import InputDataError
+    from sysid.maneuvers import Campaign, default_campaign, run_campaign
+
+    if args.campaign:
+        if args.speed is not None:
+            raise InputDataError("--speed applies to the built-in campaign only; set "
+                                 "airspeed_kt in the campaign file instead")
+        campaign = Campaign.from_toml(args.campaign)
+        if args.no_noise:
+            campaign.noise, campaign.turbulence = {}, 0.0
+    else:
+        campaign = default_campaign(args.speed or 0.0, noise=not args.no_noise)
+    if args.print_default:
+        print(campaign.to_toml(), end="")
+        return 0
+    campaign = campaign.select(args.maneuvers)
+    if not campaign.maneuvers:
+        raise InputDataError(f"no manoeuvre matches {args.maneuvers!r}")
+    run_campaign(campaign, Path(args.output), quiet=args.quiet)
+    if not args.quiet:
+        print(Path(args.output).resolve())
+    return 0
