@@ -682,6 +682,7 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
     outputs = [str(s) for s in spec.get("outputs", states)]
     name = str(spec.get("name", Path(source).stem))
     known_tables = {"name", "description", "states", "inputs", "outputs", "kinematics", "trim",
+                    "frequency_range",
                     "A", "B", "C", "D", "delays"}
     extra = set(spec) - known_tables
     if extra:
@@ -712,6 +713,19 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
         attrs = {"theta0_deg": resolved["theta0"], "phi0_deg": resolved["phi0"],
                  "u0_ft_s": resolved["u0"], "v0_ft_s": resolved["v0"],
                  "w0_ft_s": resolved["w0"], "kinematics": 1}
+    if "frequency_range" in spec:
+        # The band where the structure is a valid model (a quasi-steady model is only valid
+        # below the rotor, inflow and actuator modes); fits use it unless told otherwise.
+        band = spec["frequency_range"]
+        try:
+            lo, hi = (float(v) for v in band)
+        except (TypeError, ValueError):
+            raise InputDataError(f"structure {source}: frequency_range must be two numbers "
+                                 f"[omega_min, omega_max] in rad/s, got {band!r}") from None
+        if not 0.0 <= lo < hi:
+            raise InputDataError(f"structure {source}: frequency_range needs 0 <= omega_min < "
+                                 f"omega_max, got {band!r}")
+        attrs.update(fit_omega_min=lo, fit_omega_max=hi)
     trim_all = dict(spec.get("trim", {}))
     trim_all.update(trim)
     params: list[Parameter] = []

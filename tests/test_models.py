@@ -208,11 +208,16 @@ def test_toml_structure(tmp_path):
 
 
 def test_builtin_hover_structure():
-    assert "hover_6dof" in builtin_structures()
-    st = load_structure("hover_6dof", trim={"theta": 6.76, "phi": -2.87})
-    assert {"tau_L_lon", "tau_M_lat", "M_q", "L_p", "N_ped"} <= set(st.free_names)
-    tau = st.matrices()[4]
+    assert {"hover_6dof", "paper_hover"} <= set(builtin_structures())
+    paper = load_structure("paper_hover", trim={"theta": 6.76, "phi": -2.87})
+    tau = paper.matrices()[4]   # the paper's two delays: lon -> p and lat -> q
     assert tau[3, 0] > 0 and tau[4, 1] > 0 and np.count_nonzero(tau) == 2
+    st = load_structure("hover_6dof", trim={"theta": 6.76, "phi": -2.87})
+    assert {"tau_L_lon", "tau_M_lat", "tau_M_lon", "tau_L_lat", "M_q", "L_p",
+            "N_ped"} <= set(st.free_names)
+    tau = st.matrices()[4]      # on- and off-axis cyclic delays in the p and q rows
+    assert np.count_nonzero(tau) == 4 and np.all(tau[3:5, 0:2] > 0)
+    assert (st.attrs["fit_omega_min"], st.attrs["fit_omega_max"]) == (0.1, 8.0)
     kin = rigid_body_terms(theta0=6.76, phi0=-2.87).values
     assert st.A0 is not None and np.array_equal(st.A0, kin)
 

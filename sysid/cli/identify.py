@@ -44,6 +44,9 @@ def register(subparsers) -> None:
                    default="auto",
                    help="start values: the campaign's /linearization when present (auto), or "
                         "the frequency-domain equation error, or the structure's values")
+    p.add_argument("--frequency-range", default=None, metavar="MIN,MAX",
+                   help="fit band in rad/s for every pair (default: the structure's own "
+                        "validity band, e.g. 0.1,8 for hover_6dof)")
     p.add_argument("--seed", type=int, default=0, help="seed of the restart perturbation")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
@@ -118,6 +121,7 @@ def run(args: argparse.Namespace) -> int:
     elif args.start == "structure":
         start = structure.theta0
     result = identify_frequency_domain(fr, structure, pairs=args.pairs, start=start,
+                                       frequency_range=_band(args.frequency_range),
                                        coherence_min=args.coherence_min, n_points=args.points,
                                        reduce=not args.no_reduction, seed=args.seed,
                                        progress=progress)
@@ -128,3 +132,18 @@ def run(args: argparse.Namespace) -> int:
     progress.message(f"[sysid] identify: model written to {args.campaign} "
                      f"(/models/frequency_domain)")
     return 0
+
+
+def _band(text: str | None) -> tuple[float, float] | None:
+    """``"0.1,8"`` -> ``(0.1, 8.0)`` rad/s."""
+    if text is None:
+        return None
+    from sysid.errors import InputDataError
+
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+    except ValueError:
+        raise InputDataError(f"--frequency-range must be MIN,MAX in rad/s, got {text!r}") from None
+    if not 0 <= lo < hi:
+        raise InputDataError(f"--frequency-range needs 0 <= MIN < MAX, got {text!r}")
+    return lo, hi

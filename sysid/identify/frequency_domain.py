@@ -672,7 +672,9 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
         the free-parameter vector. Default: frequency-domain equation error when every state
         is measured, else the structure's values.
     coherence_min, n_points, ranges, frequency_range
-        Point selection, see :func:`select_fit_data` (defaults 0.6 and 20).
+        Point selection, see :func:`select_fit_data` (defaults 0.6 and 20). Without
+        ``frequency_range`` the structure's own validity band (``frequency_range`` in its TOML
+        file, e.g. below the rotor modes for a quasi-steady model) limits every pair.
     reduce : bool
         Run the stepwise model reduction (:mod:`sysid.identify.reduction`) with
         ``cr_max`` (20 %), ``insensitivity_max`` (10 %), ``max_cost_increase`` (2 J_ave)
@@ -693,6 +695,8 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
     """
     t_start = time.perf_counter()
     progress = progress or Progress(quiet=quiet)
+    if frequency_range is None and "fit_omega_max" in structure.attrs:
+        frequency_range = (structure.attrs["fit_omega_min"], structure.attrs["fit_omega_max"])
     data = select_fit_data(fr, pairs, coherence_min=coherence_min, n_points=n_points,
                            ranges=ranges, frequency_range=frequency_range)
     for name, reason in data.skipped.items():
