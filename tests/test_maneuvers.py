@@ -74,9 +74,10 @@ def _hover_like_linearization():
 @pytest.mark.parametrize("crossover", [0.3, 0.5, 1.0])
 def test_hold_loops_cross_over_where_asked(crossover):
     lin = _hover_like_linearization()
-    loops = design_loops(lin, Stabilisation(crossover=crossover))
+    loops = design_loops(lin, Stabilisation(crossover=crossover, heading_crossover=crossover / 2))
     for control_name, rate in (("lat", "p"), ("lon", "q"), ("ped", "r")):
         loop = loops[control_name]
+        wanted = crossover / 2 if control_name == "ped" else crossover
         damping = float(lin.A.sel(state_dot=rate, state=rate))
         derivative = float(lin.B.sel(state_dot=rate, input=control_name))
         # Airframe: angle'' = damping angle' + derivative * delta. The design crossover is
@@ -85,5 +86,5 @@ def test_hold_loops_cross_over_where_asked(crossover):
         plant = derivative / (s * (s - damping))
         inner = control.feedback(plant, loop.k_rate * s / derivative)
         outer = inner * (loop.k_error / derivative)
-        assert abs(control.evalfr(outer, 1j * crossover)) == pytest.approx(1.0, rel=1e-9)
+        assert abs(control.evalfr(outer, 1j * wanted)) == pytest.approx(1.0, rel=1e-9)
         assert np.all(np.real(control.poles(control.feedback(outer))) < 0)
