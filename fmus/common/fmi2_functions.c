@@ -84,6 +84,23 @@ static fmi2Status ensure_derived(ModelInstance *comp) {
 }
 
 /* ------------------------------------------------------------------------------------------ */
+/* default event hooks (fmu_model.h) for models without an input history                       */
+
+#ifndef MODEL_HAS_EVENT_HOOKS
+fmi2Status model_inputs_set(ModelInstance *comp) {
+    (void)comp;
+    return fmi2OK;
+}
+
+int model_step_event(const ModelInstance *comp) {
+    (void)comp;
+    return 0;
+}
+
+void model_event_update(ModelInstance *comp) { (void)comp; }
+#endif
+
+/* ------------------------------------------------------------------------------------------ */
 /* integrator offered to the models                                                             */
 
 static int all_finite(const double *x, int n) {
@@ -227,6 +244,8 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
     comp->s.derived_valid = 0;
     status = ensure_derived(comp);
     if (status > fmi2Warning) return fail(comp);
+    /* the inputs set during initialisation are those in effect at the start time */
+    if (model_inputs_set(comp) > fmi2Warning) return fail(comp);
     comp->s.dirty = 1;
     comp->s.phase = comp->type == fmi2ModelExchange ? PHASE_EVENT : PHASE_STEP_COMPLETE;
     return status;
@@ -285,6 +304,7 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
                        const fmi2Real value[]) {
     ModelInstance *comp = (ModelInstance *)c;
     size_t i;
+    int inputs_changed = 0;
     if (invalid_phase(comp, "fmi2SetReal", ALL_ALIVE & ~PHASE_TERMINATED)) return fmi2Error;
     if (nvr == 0) return fmi2OK;
     if (null_pointer(comp, "fmi2SetReal", "vr[]", vr) ||
@@ -315,8 +335,14 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
     for (i = 0; i < nvr; i++) {
         comp->s.r[vr[i]] = value[i];
         if (MODEL_VAR_KIND[vr[i]] == KIND_PARAMETER) comp->s.derived_valid = 0;
+        if (MODEL_VAR_KIND[vr[i]] == KIND_INPUT) inputs_changed = 1;
     }
     comp->s.dirty = 1;
+    /* Before initialisation ends the time stands at the start time and parameters may still
+     * change: fmi2ExitInitializationMode reports the inputs once instead. */
+    if (inputs_changed && (comp->s.phase & RUNNING)) {
+        if (model_inputs_set(comp) > fmi2Warning) return fail(comp);
+    }
     return fmi2OK;
 }
 
@@ -501,7 +527,9 @@ fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *eventInfo) {
     ModelInstance *comp = (ModelInstance *)c;
     if (invalid_phase(comp, "fmi2NewDiscreteStates", PHASE_EVENT)) return fmi2Error;
     if (null_pointer(comp, "fmi2NewDiscreteStates", "eventInfo", eventInfo)) return fmi2Error;
-    /* The models are purely continuous: no discrete states, no time events. */
+    /* No discrete states and no time events; a model with an input history only learns
+     * here that its pending step event is being handled. */
+    model_event_update(comp);
     eventInfo->newDiscreteStatesNeeded = fmi2False;
     eventInfo->terminateSimulation = fmi2False;
     eventInfo->nominalsOfContinuousStatesChanged = fmi2False;
@@ -526,7 +554,7 @@ fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStat
     if (null_pointer(comp, "fmi2CompletedIntegratorStep", "enterEventMode", enterEventMode) ||
         null_pointer(comp, "fmi2CompletedIntegratorStep", "terminateSimulation", terminateSimulation))
         return fmi2Error;
-    *enterEventMode = fmi2False;
+    *enterEventMode = model_step_event(comp) ? fmi2True : fmi2False;
     *terminateSimulation = fmi2False;
     return fmi2OK;
 }

@@ -10,7 +10,7 @@
  *                      derivatives N_STATES..2*N_STATES-1, so the state vector is r[0..N_STATES).
  *   model.h            the type ModelData: model-private memory (derived constants, delay
  *                      buffers, ...). It is part of the FMU state snapshot.
- *   model.c            the five functions declared at the end of this file.
+ *   model.c            the five functions declared below (and, optionally, the event hooks).
  *
  * See fmus/common/README.md for the full contract.
  */
@@ -99,5 +99,26 @@ fmi2Status model_do_step(ModelInstance *comp, double h);
 /* Called by fmi2Reset after the start values have been restored, so that the model can
  * clear comp->s.data (e.g. delay buffers). */
 void model_reset(ModelInstance *comp);
+
+/* ---- optional event hooks ----
+ * A model whose model.h defines MODEL_HAS_EVENT_HOOKS implements the three functions below;
+ * for any other model (the helicopter) fmi2_functions.c supplies no-op defaults, so existing
+ * models build and behave unchanged. They let a model keep a history of its inputs in model
+ * exchange (e.g. exact input delays) and tell the integrator when that history makes the
+ * derivatives jump. */
+
+/* Called by fmi2SetReal after input values were stored while the FMU runs (event,
+ * continuous-time or step-complete mode), and once by fmi2ExitInitializationMode (after
+ * model_initialize) so that the model sees the inputs in effect at the start time. May update
+ * comp->s.data; return fmi2Error after logging a message to refuse the call. */
+fmi2Status model_inputs_set(ModelInstance *comp);
+
+/* Called by fmi2CompletedIntegratorStep: nonzero asks the environment to enter event mode
+ * (step event), e.g. because the derivatives jumped at the current time. */
+int model_step_event(const ModelInstance *comp);
+
+/* Called by fmi2NewDiscreteStates in event mode: the environment handles the event now (it
+ * will restart its integrator), so pending step events can be cleared. */
+void model_event_update(ModelInstance *comp);
 
 #endif

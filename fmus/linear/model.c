@@ -6,12 +6,16 @@
  *
  *   x' = A x + sum_k B_ik u_k(t - tau_ik),   y = trim_y + C x + D (u - trim_u)
  *
- * Model exchange: each delay group (one delay acting on some B entries of one input) is an
- * n-th order Pade approximant with its own continuous states. Co-simulation: the states are
- * advanced by the exact zero-order-hold discretisation of the communication step (matrix
- * exponential by Pade scaling and squaring, recomputed when the step changes) and each delay
- * group reads a ring buffer of past inputs, linearly interpolated between communication
- * points: the convention of sysid.models.simulate. See README.md.
+ * Co-simulation: the states are advanced by the exact zero-order-hold discretisation of the
+ * communication step (matrix exponential by Pade scaling and squaring, recomputed when the
+ * step changes) and each delay group (one delay acting on some B entries of one input) reads
+ * a ring buffer of past inputs, linearly interpolated between communication points: the
+ * convention of sysid.models.simulate. Model exchange, ME_DELAY_BUFFER = 1 (default): the
+ * same ring buffer, filled at every input update (fmi2SetReal), gives each group a delayed
+ * input held from one update to the next - the same convention, so CVode reproduces
+ * simulate to its tolerance; an update that changes a delayed input raises a step event.
+ * ME_DELAY_BUFFER = 0: each group is an n-th order Pade approximant with its own continuous
+ * states. See README.md.
  */
 #include <math.h>
 #include <stdlib.h>
@@ -104,6 +108,7 @@ void model_reset(ModelInstance *comp) {
     comp->s.data.zoh_valid = 0;
     comp->s.data.hist_count = 0;
     comp->s.data.hist_dropped = 0;
+    comp->s.data.event_pending = 0;
 }
 
 /* ------------------------------------------------------------------------------------------ */
@@ -129,37 +134,8 @@ static void perturbation_inputs(const ModelInstance *comp, double *u) {
     for (k = 0; k < N_U; k++) u[k] = R(comp, VR_U0 + k) - comp->s.data.trim_u[k];
 }
 
-void model_derivatives(const ModelInstance *comp, double t, const double *x, double *dx) {
-    const ModelData *d = &comp->s.data;
-    double u[N_U], v[N_GROUPS_ALLOC];
-    int g, i;
-    (void)t;
-    perturbation_inputs(comp, u);
-    for (g = 0; g < N_GROUPS; g++) {
-        const double *z = x + N_X + g * PADE_ORDER;
-        double *dz = dx + N_X + g * PADE_ORDER;
-        double ug = u[GROUP_INPUT[g]];
-        if (d->tau[g] > 0.0) {
-            /* dz/dt = (Ac z + b e_n u) / tau, v = c z + d u (time scaled by tau) */
-            double rate = 1.0 / d->tau[g], last = d->pade_b * ug, out = d->pade_d * ug;
-            for (i = 0; i < PADE_ORDER; i++) {
-                last -= d->pade_a[i] * z[i];
-                out += d->pade_c[i] * z[i];
-                if (i + 1 < PADE_ORDER) dz[i] = rate * z[i + 1];
-            }
-            dz[PADE_ORDER - 1] = rate * last;
-            v[g] = out;
-        } else {
-            /* no delay: the group passes its input, its states decay (they start at 0) */
-            for (i = 0; i < PADE_ORDER; i++) dz[i] = -z[i];
-            v[g] = ug;
-        }
-    }
-    state_derivative(d, x, u, v, dx);
-}
-
 /* ------------------------------------------------------------------------------------------ */
-/* co-simulation: input history and exact discretisation                                        */
+/* input history (co-simulation, and model exchange with ME_DELAY_BUFFER)                                        */
 
 static void history_append(ModelData *d, double t, const double *u_abs) {
     int k;
@@ -176,7 +152,7 @@ static void history_append(ModelData *d, double t, const double *u_abs) {
 }
 
 /* Input k (absolute) at time s <= newest sample, linearly interpolated between the stored
- * communication points; before the first sample it is held at the first sample. Returns 0
+ * samples; before the first sample it is held at the first sample. Returns 0
  * if the sample needed has already been overwritten. */
 static int history_value(const ModelData *d, int k, double s, double *value) {
     int n, idx = d->hist_head, newer = -1;
@@ -185,8 +161,11 @@ static int history_value(const ModelData *d, int k, double s, double *value) {
             if (newer < 0) {
                 *value = d->hist_u[idx][k];
             } else {
+                /* u0 + w (u1 - u0) returns u0 exactly between equal samples, so a held
+                 * input gives a delayed input that does not change in the last bit (model
+                 * exchange raises an event whenever a delayed input changes) */
                 double w = (s - d->hist_t[idx]) / (d->hist_t[newer] - d->hist_t[idx]);
-                *value = (1.0 - w) * d->hist_u[idx][k] + w * d->hist_u[newer][k];
+                *value = d->hist_u[idx][k] + w * (d->hist_u[newer][k] - d->hist_u[idx][k]);
             }
             return 1;
         }
@@ -218,6 +197,120 @@ static fmi2Status delayed_inputs(const ModelInstance *comp, double t, double *v)
     }
     return fmi2OK;
 }
+
+/* ------------------------------------------------------------------------------------------ */
+/* model exchange                                                                               */
+
+#if ME_DELAY_BUFFER
+/* Record the inputs at the current time and the delayed input each group holds from now on.
+ *
+ * Convention (that of sysid.models.simulate and of model_do_step): the environment sets the
+ * inputs at its sample instants t_k and they are held until the next update; a group with
+ * delay tau then sees, on [t_k, t_k+1), the recorded samples linearly interpolated at
+ * t_k - tau (before the first sample: the first sample). Every update at a new time is a
+ * sample, also when the values did not change, because the interpolation is between
+ * neighbouring samples; an update at the time of the newest sample replaces it (the value
+ * after an input event at t_k wins over the left limit set just before), and an update at an
+ * earlier time (the environment went back without restoring an FMU state) drops the samples
+ * after it. */
+static fmi2Status me_record_inputs(ModelInstance *comp) {
+    ModelData *d = &comp->s.data;
+    const double t = comp->s.time;
+    double u_abs[N_U], before[N_GROUPS_ALLOC];
+    int g, k, had_before;
+
+    while (d->hist_count > 0 && d->hist_t[d->hist_head] > t) {
+        d->hist_head = (d->hist_head + HIST_LEN - 1) % HIST_LEN;
+        d->hist_count--;
+    }
+    had_before = d->hist_count > 0;
+    for (g = 0; g < N_GROUPS; g++) before[g] = had_before ? d->hist_v[d->hist_head][g] : 0.0;
+    for (k = 0; k < N_U; k++) u_abs[k] = R(comp, VR_U0 + k);
+    history_append(d, t, u_abs);
+    for (g = 0; g < N_GROUPS; g++) {
+        double value = u_abs[GROUP_INPUT[g]];
+        if (d->tau[g] > 0.0 && !history_value(d, GROUP_INPUT[g], t - d->tau[g], &value)) {
+            fmu_log(comp, fmi2Error, "logError",
+                    "delay %s = %g s reaches back beyond the %d stored input updates at "
+                    "t = %g s; set the inputs less often or export with more history samples",
+                    PAR_NAMES[GROUP_PAR[g]], d->tau[g], HIST_LEN, t);
+            return fmi2Error;
+        }
+        d->hist_v[d->hist_head][g] = value;
+        /* An undelayed group reads the live input like an undelayed entry; a delayed one
+         * makes the derivatives jump here if its held value changed. */
+        if (d->tau[g] > 0.0 && had_before && value != before[g]) d->event_pending = 1;
+    }
+    return fmi2OK;
+}
+
+/* Newest sample recorded at or before t (the oldest if t precedes them all). model_derivatives
+ * is evaluated at the newest sample's time or later, so this normally returns at once; CVode
+ * may evaluate beyond the next update, where the held value still applies. */
+static int me_sample_at(const ModelData *d, double t) {
+    int n, idx = d->hist_head;
+    for (n = 1; n < d->hist_count && d->hist_t[idx] > t; n++)
+        idx = (idx + HIST_LEN - 1) % HIST_LEN;
+    return idx;
+}
+#endif
+
+fmi2Status model_inputs_set(ModelInstance *comp) {
+#if ME_DELAY_BUFFER
+    if (comp->type == fmi2ModelExchange && N_GROUPS > 0) return me_record_inputs(comp);
+#else
+    (void)comp;
+#endif
+    return fmi2OK; /* co-simulation samples the inputs in model_do_step */
+}
+
+int model_step_event(const ModelInstance *comp) { return comp->s.data.event_pending; }
+
+void model_event_update(ModelInstance *comp) { comp->s.data.event_pending = 0; }
+
+void model_derivatives(const ModelInstance *comp, double t, const double *x, double *dx) {
+    const ModelData *d = &comp->s.data;
+    double u[N_U], v[N_GROUPS_ALLOC] = {0.0}; /* zeroed: a model without delays reads none */
+    int g, i;
+    perturbation_inputs(comp, u);
+#if ME_DELAY_BUFFER
+    (void)i;
+    if (N_GROUPS > 0) {
+        int idx = d->hist_count > 0 ? me_sample_at(d, t) : -1;
+        for (g = 0; g < N_GROUPS; g++) {
+            int k = GROUP_INPUT[g];
+            /* before the first update (e.g. in initialisation mode) there is no history */
+            v[g] = (d->tau[g] > 0.0 && idx >= 0) ? d->hist_v[idx][g] - d->trim_u[k] : u[k];
+        }
+    }
+#else
+    (void)t;
+    for (g = 0; g < N_GROUPS; g++) {
+        const double *z = x + N_X + g * PADE_ORDER;
+        double *dz = dx + N_X + g * PADE_ORDER;
+        double ug = u[GROUP_INPUT[g]];
+        if (d->tau[g] > 0.0) {
+            /* dz/dt = (Ac z + b e_n u) / tau, v = c z + d u (time scaled by tau) */
+            double rate = 1.0 / d->tau[g], last = d->pade_b * ug, out = d->pade_d * ug;
+            for (i = 0; i < PADE_ORDER; i++) {
+                last -= d->pade_a[i] * z[i];
+                out += d->pade_c[i] * z[i];
+                if (i + 1 < PADE_ORDER) dz[i] = rate * z[i + 1];
+            }
+            dz[PADE_ORDER - 1] = rate * last;
+            v[g] = out;
+        } else {
+            /* no delay: the group passes its input, its states decay (they start at 0) */
+            for (i = 0; i < PADE_ORDER; i++) dz[i] = -z[i];
+            v[g] = ug;
+        }
+    }
+#endif
+    state_derivative(d, x, u, v, dx);
+}
+
+/* ------------------------------------------------------------------------------------------ */
+/* co-simulation: exact discretisation                                                          */
 
 /* LU solve of M X = Y in place (M n x n, Y n x n, row-major), partial pivoting. */
 static int solve_in_place(double *M, double *Y, int n) {
@@ -344,7 +437,7 @@ static fmi2Status discretise(ModelInstance *comp, double h) {
 
 fmi2Status model_do_step(ModelInstance *comp, double h) {
     ModelData *d = &comp->s.data;
-    double u_abs[N_U], u[N_U], v[N_GROUPS_ALLOC], f[N_X], x_new[N_X];
+    double u_abs[N_U], u[N_U], v[N_GROUPS_ALLOC] = {0.0}, f[N_X], x_new[N_X];
     double *x = comp->s.r + VR_STATE0;
     int i, j, k;
 
@@ -400,7 +493,7 @@ void model_calculate_values(ModelInstance *comp) {
         model_derivatives(comp, comp->s.time, x, dx);
     } else {
         /* Co-simulation has no Pade states: der(x) uses the buffered delayed inputs. */
-        double v[N_GROUPS_ALLOC];
+        double v[N_GROUPS_ALLOC] = {0.0};
         double value;
         int g;
         for (g = 0; g < N_GROUPS; g++) {

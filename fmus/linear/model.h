@@ -11,6 +11,11 @@
 
 #include "linear_dims.h"
 
+/* This model implements the optional event hooks of fmu_model.h (model_inputs_set,
+ * model_step_event, model_event_update): model exchange keeps an input history for exact
+ * delays when exported with ME_DELAY_BUFFER = 1. */
+#define MODEL_HAS_EVENT_HOOKS 1
+
 /* C has no zero-length arrays: a model without delays still gets one (unused) slot. */
 #define N_GROUPS_ALLOC (N_GROUPS > 0 ? N_GROUPS : 1)
 #define PADE_ALLOC (PADE_ORDER > 0 ? PADE_ORDER : 1)
@@ -40,12 +45,23 @@ typedef struct {
     double Phi[N_X][N_X];
     double Psi[N_X][N_X];
 
-    /* Co-simulation: ring buffer of the inputs at past communication points. */
+    /* Ring buffer of the inputs at past input updates: in co-simulation one sample per
+     * communication point (fmi2DoStep), in model exchange with ME_DELAY_BUFFER one per
+     * fmi2SetReal of the inputs at a new time (an update at the same time overwrites). An
+     * instance is either one or the other, so both use the same arrays. */
     double hist_t[HIST_LEN];
     double hist_u[HIST_LEN][N_U];
     int hist_head;    /* index of the newest sample */
     int hist_count;   /* number of valid samples */
     int hist_dropped; /* 1 once the oldest sample has been overwritten */
+
+    /* Model exchange with ME_DELAY_BUFFER: the delayed input (absolute) each group holds from
+     * the time of a sample until the next update, u(t_k - tau) interpolated in the history
+     * when sample k was recorded; and whether a recorded update changed a delayed input since
+     * the last event (the derivatives jumped: fmi2CompletedIntegratorStep asks for an event
+     * so that the integrator restarts there). */
+    double hist_v[HIST_LEN][N_GROUPS_ALLOC];
+    int event_pending;
 } ModelData;
 
 #endif

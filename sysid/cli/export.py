@@ -30,7 +30,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
     out = args.output or f"{args.model}.fmu"
     path = export_fmu(models[args.model], out, fmi_version=args.fmi,
                       model_name=args.name or f"sysid_{args.model}", step_size=args.step,
-                      pade_order=args.pade_order, quiet=args.quiet)
+                      me_delay=args.me_delay, pade_order=args.pade_order, quiet=args.quiet)
     print(path)
     return 0
 
@@ -68,8 +68,9 @@ def validate_model(name: str, model: xr.Dataset, *, fmu_dir: Path, truth=None, t
                                         "max error / peak response"})
     ds["roundtrip_me"] = ("maneuver", [roundtrip_error(model, path, manoeuvres[m], mode="me")
                                        .attrs["max_relative_error"] for m in names],
-                          {"long_name": "model exchange (CVode, Pade delays) vs "
-                                        "sysid.models.simulate, max error / peak response"})
+                          {"long_name": "model exchange (CVode, delays from the input "
+                                        "history) vs sysid.models.simulate, max error / "
+                                        "peak response"})
     if truth is not None:
         runs = [compare_with_truth(path, truth, manoeuvres[m], trim=trim, model_name=name)
                 for m in names]
@@ -142,8 +143,11 @@ def register(subparsers) -> None:
                    "available yet)")
     p.add_argument("--name", help="model name in the FMU (default sysid_<model>)")
     p.add_argument("--step", type=float, default=0.01, help="default communication step, s")
+    p.add_argument("--me-delay", choices=("buffer", "pade"), default="buffer",
+                   help="delays in model exchange: input history held between input updates "
+                        "(exact, default) or Pade approximants (see fmus/linear/README.md)")
     p.add_argument("--pade-order", type=int, default=6,
-                   help="order of the Pade delays in model exchange (default 6)")
+                   help="order of the Pade delays with --me-delay pade (default 6)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=_cmd_export)
 
