@@ -6,6 +6,11 @@ marked ``@pytest.mark.fmu``.
 """
 
 import pytest
+from threadpoolctl import threadpool_limits
+
+# One BLAS thread: the suite is dominated by many mid-sized matrix products, which
+# multi-threaded OpenBLAS slows by up to 10x on the 2-core CI machine (measured).
+_BLAS_LIMIT = threadpool_limits(limits=1, user_api="blas")
 
 
 @pytest.fixture(scope="session")
