@@ -220,12 +220,15 @@ def conditioned_pair_spectra(Gxx: xr.DataArray, Gyy: xr.DataArray, Gxy: xr.DataA
 
     Returns a Dataset with ``Gxx_pair``, ``Gyy_pair`` (real), ``Gxy_pair`` (complex), all
     (output, input, ...), and ``multiple_coherence`` (output, ...). Entries at ``flag`` (bool
-    over the non-core dims, e.g. :func:`collinear`) are NaN.
+    over the non-core dims, e.g. :func:`collinear`) are NaN; without ``flag``, entries where
+    the input matrix is singular (linearly dependent inputs) are NaN.
     """
     if method not in _CORES:
         raise InputDataError(f"conditioning method must be one of {sorted(_CORES)}, got {method!r}")
     if flag is None:
-        flag = xr.zeros_like(Gyy.isel(output=0, drop=True), dtype=bool)
+        # Never invert a singular input matrix (e.g. x2 = 2 x1): NaN there, not an exception
+        # from the solve or numbers made of rounding noise.
+        flag = collinear(Gxx, 1.0)
     gxx_c, gyy_c, gxy_c, mult = xr.apply_ufunc(
         _CORES[method], Gxx, Gxy, Gyy, flag,
         input_core_dims=[["input", "input_j"], ["output", "input"], ["output"], []],

@@ -50,10 +50,18 @@ class _Exported:
     def __init__(self, path):
         from fmpy import read_model_description
 
+        from sysid.fmu._runtime import inspect_archive
+
         self.path = Path(path)
         if not self.path.is_file():
             raise FMUError(f"exported FMU {self.path} does not exist")
-        self.md = read_model_description(str(self.path), validate=False)
+        # Refuse hostile or broken archives before fmpy reads or extracts anything.
+        inspect_archive(self.path)
+        try:
+            self.md = read_model_description(str(self.path), validate=False)
+        except Exception as exc:  # fmpy raises plain exceptions for broken descriptions
+            message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise FMUError(f"exported FMU {self.path} is not a valid FMU: {message}") from None
         self.vars = {v.name: v for v in self.md.modelVariables}
         self.inputs = [v.name for v in self.md.modelVariables if v.causality == "input"]
         self.outputs = [v.name for v in self.md.modelVariables if v.causality == "output"]

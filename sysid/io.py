@@ -362,20 +362,26 @@ def _check_time_grid(t: np.ndarray, where: str, row_label=None, rtol: float = TI
     bad = np.flatnonzero(~np.isfinite(t))
     if bad.size:
         raise InputDataError(f"{where}: time is not finite at {label(bad[0])} ({t[bad[0]]})")
-    steps = np.diff(t)
+    with np.errstate(over="ignore", invalid="ignore"):
+        steps = np.diff(t)
+        span = t[-1] - t[0]
+    if not np.isfinite(span):
+        raise InputDataError(f"{where}: time span {float(t[0])!r} .. {float(t[-1])!r} "
+                             "overflows; expected times in seconds of a manoeuvre")
     back = np.flatnonzero(steps <= 0)
     if back.size:
         i = back[0] + 1
         raise InputDataError(
             f"{where}: time is not strictly increasing at {label(i)}: "
-            f"t = {t[i]!r} after {t[i - 1]!r}")
+            f"t = {float(t[i])!r} after {float(t[i - 1])!r}")
     dt = (t[-1] - t[0]) / (t.size - 1)
     off = np.flatnonzero(np.abs(steps - dt) > rtol * dt)
     if off.size:
         i = off[0] + 1
         raise InputDataError(
-            f"{where}: time is not uniform at {label(i)}: step {steps[i - 1]!r} s, expected "
-            f"{dt!r} s (relative tolerance {rtol:g}); resample the record onto a uniform grid")
+            f"{where}: time is not uniform at {label(i)}: step {float(steps[i - 1])!r} s, "
+            f"expected {float(dt)!r} s (relative tolerance {rtol:g}); resample the record "
+            "onto a uniform grid")
     return float(dt)
 
 
@@ -560,7 +566,12 @@ def _read_netcdf_table(path: Path):
     except Exception as exc:  # netCDF/HDF5 raise many types for broken files
         raise InputDataError(f"cannot read netCDF file {path} ({type(exc).__name__}: {exc})"
                              ) from exc
-    ds = decode_complex(ds)
+    try:
+        ds = decode_complex(ds)
+    except (ValueError, TypeError, KeyError, IndexError, AttributeError) as exc:
+        # e.g. a corrupted sysid_attr_types JSON or a sysid_complex flag on a real variable
+        raise InputDataError(f"file {path}: malformed sysid attributes "
+                             f"({type(exc).__name__}: {exc})") from exc
     time_dim = next((d for d in ds.dims if str(d).lower() in ("time", "t")), None)
     if time_dim is None:
         raise InputDataError(f"file {path}: no 'time' dimension; dimensions: {list(ds.dims)}")
@@ -568,6 +579,9 @@ def _read_netcdf_table(path: Path):
                                if v.dims == (time_dim,) and v.dtype.kind in "biuf"]
     if str(time_dim) not in ds.variables:
         raise InputDataError(f"file {path}: dimension {time_dim!r} has no coordinate values")
+    if ds[time_dim].dtype.kind not in "biuf":
+        raise InputDataError(f"file {path}: coordinate {time_dim!r} has dtype "
+                             f"{ds[time_dim].dtype}; expected numbers (seconds)")
     rows = np.column_stack([np.asarray(ds[n].values, dtype=float) for n in names])
     units = [ds[n].attrs.get("units") for n in names]
     return names, units, rows, np.arange(rows.shape[0]), dict(ds.attrs)
@@ -643,7 +657,8 @@ def read_time_history(path: str | os.PathLike, mapping: Mapping[str, str] | None
     if re.fullmatch(r"(s|sec|secs|second|seconds)(\s+since\s.*)?", time_unit.strip(), re.I):
         time_unit = "s"
     try:
-        t = t * conversion_factor(time_unit, "s")
+        with np.errstate(over="ignore"):
+            t = t * conversion_factor(time_unit, "s")
     except ValueError as exc:
         raise InputDataError(f"{where}: {exc}") from exc
     dt = _check_time_grid(t, where, label, rtol=rtol)
@@ -664,7 +679,14 @@ def read_time_history(path: str | os.PathLike, mapping: Mapping[str, str] | None
                 raise InputDataError(f"file {path}, column {col!r} (channel {ch!r}): "
                                      f"{exc}") from exc
             attrs = {"units": target, "long_name": CHANNELS[ch].long_name}
-            values = values * factor
+            with np.errstate(over="ignore"):
+                values = values * factor
+            bad = np.flatnonzero(~np.isfinite(values))
+            if bad.size:
+                raise InputDataError(
+                    f"file {path}, {label(bad[0])}, column {col!r}: value "
+                    f"{rows[bad[0], index[col]]!r} {file_unit} overflows when converted to "
+                    f"{target}; expected a finite number")
         else:
             attrs = {"units": file_unit or "1", "long_name": str(col)}
         if col != ch:
@@ -673,6 +695,9 @@ def read_time_history(path: str | os.PathLike, mapping: Mapping[str, str] | None
         data_vars[var_name] = ("time", values, attrs)
 
     name = name or file_attrs.get("maneuver") or path.stem
+    if not isinstance(name, str) or not name.strip() or "/" in name or name in (".", ".."):
+        raise InputDataError(f"file {path}: manoeuvre name {name!r} is not usable as a group "
+                             "name; expected a non-empty string without '/' (pass name=...)")
     guess_kind, guess_axis = _infer_kind_axis(name)
     attrs = {k: v for k, v in file_attrs.items() if not str(k).startswith("_")}
     attrs.update({
@@ -689,19 +714,28 @@ def read_time_history(path: str | os.PathLike, mapping: Mapping[str, str] | None
     })
     time = (t - t[0])
     first = time < TRIM_WINDOW - 0.5 * dt
+    first[0] = True  # samples further apart than the trim window: trim at the first one
     trim = dict(trim or {})
     unknown = sorted(set(trim) - set(data_vars) - set(CHANNELS))
     if unknown:
         raise InputDataError(f"file {path}: trim given for unknown channel(s) {unknown}; "
                              f"expected channels read ({sorted(data_vars)}) or sysid channels "
                              f"({sorted(CHANNELS)})")
+    for key in [k for k in attrs if str(k).startswith("trim_")]:
+        value = attrs[key]
+        if value is None or (isinstance(value, float) and np.isnan(value)):
+            del attrs[key]  # not given: computed from the data below
+        elif (isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number))
+              or not np.isfinite(value)):
+            raise InputDataError(f"file {path}: attribute {key} = {value!r}; expected a finite "
+                                 "number (trim value in analysis units)")
     for var_name, value in trim.items():
         attrs[f"trim_{var_name}"] = float(value)
     for var_name, (_, values, _) in data_vars.items():
         key = f"trim_{var_name}"
         if var_name in trim:
             attrs[key] = float(trim[var_name])
-        elif key not in file_attrs:
+        elif key not in attrs:
             attrs[key] = float(np.mean(values[first]))
     return xr.Dataset(data_vars, coords={"time": ("time", time, {"units": "s",
                                                                   "long_name": "time"})},

@@ -168,7 +168,12 @@ def perturbations(records, channels: Sequence[str],
             if c in varies and np.ptp(x) > 1e-12 * max(1.0, float(np.max(np.abs(x)))):
                 varies[c] = True
             trim = ds.attrs.get(f"trim_{c}")
-            ref = float(trim) if trim is not None and np.isfinite(trim) else float(np.mean(x))
+            try:
+                trim = None if trim is None else float(trim)
+            except (TypeError, ValueError):
+                raise InputDataError(f"record {name!r}: attribute trim_{c} = {trim!r}; expected "
+                                     "a number (the channel's trim value)") from None
+            ref = trim if trim is not None and np.isfinite(trim) else float(np.mean(x))
             rows.append(x - ref)
         out.append(xr.DataArray(
             np.vstack(rows), dims=("channel", "time"),
@@ -339,12 +344,24 @@ def window_spectra(signals: Sequence[xr.DataArray], inputs: Sequence[str],
     for sig in signals:
         x = sig.sel(channel=inputs + outputs).values
         _, step, n_seg = segment_layout(x.shape[1], window, dt, overlap)
-        coef = _segment_transforms(x, n_win, step, kernel).transpose(2, 0, 1)  # (F, ch, seg)
-        cx, cy = coef[:, :n_in], coef[:, n_in:]
-        sxx += np.conj(cx) @ cx.transpose(0, 2, 1)           # sum_k conj(X_i) X_j
-        sxy += cy @ np.conj(cx).transpose(0, 2, 1)           # sum_k conj(X_i) Y_o
-        syy += np.sum(cy.real ** 2 + cy.imag ** 2, axis=-1)  # sum_k |Y_o|^2
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported below
+            coef = _segment_transforms(x, n_win, step, kernel).transpose(2, 0, 1)
+            cx, cy = coef[:, :n_in], coef[:, n_in:]               # (F, ch, seg)
+            sxx += np.conj(cx) @ cx.transpose(0, 2, 1)           # sum_k conj(X_i) X_j
+            sxy += cy @ np.conj(cx).transpose(0, 2, 1)           # sum_k conj(X_i) Y_o
+            syy += np.sum(cy.real ** 2 + cy.imag ** 2, axis=-1)  # sum_k |Y_o|^2
         n_seg_total += n_seg
+    finite = np.concatenate([np.isfinite(np.diagonal(sxx, axis1=1, axis2=2)).all(axis=0),
+                             np.isfinite(syy).all(axis=0)])
+    if not finite.all() or not np.isfinite(sxx).all() or not np.isfinite(sxy).all():
+        channels = inputs + outputs
+        bad = [c for c, ok in zip(channels, finite) if not ok] or channels
+        peak = {c: float(max(np.max(np.abs(s.sel(channel=c).values)) for s in signals))
+                for c in bad}
+        raise InputDataError(
+            f"the spectra of channel(s) {bad} overflow (largest perturbation "
+            f"{', '.join(f'{c}: {v:.3g}' for c, v in peak.items())}); expected finite values "
+            "of a physical size in analysis units (ft/s, deg/s, deg, %)")
     scale = 2.0 / (n_win * dt) / n_seg_total  # Eq. 3-6: (1/n) sum (2/T) ...
     coords = {"input": inputs, "input_j": inputs, "output": outputs,
               "frequency": omega, "window": float(window)}

@@ -11,6 +11,7 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import os
+import re
 import shutil
 import tempfile
 import zipfile
@@ -83,6 +84,13 @@ class FMUModel:
         except KeyError:
             raise FMUError(f"{self.path.name} has no variable {name!r}") from None
 
+    def require(self, names, purpose: str) -> None:
+        """Raise :class:`FMUError` listing every one of ``names`` the FMU does not have."""
+        missing = [n for n in names if n not in self.variables]
+        if missing:
+            raise FMUError(f"{self.path} cannot be used {purpose}: it has no variable(s) "
+                           f"{missing} (model {self.name!r}; is it the helicopter FMU?)")
+
     def vrs(self, names) -> np.ndarray:
         """Value references of ``names`` as a C-contiguous ``uint32`` array."""
         return np.ascontiguousarray([self.variable(n).valueReference for n in names],
@@ -106,8 +114,164 @@ def _file_digest(path: Path) -> str:
     return digest.hexdigest()
 
 
+# --------------------------------------------------------------------------------------------
+# archive safety: everything below is checked on the zip directory and modelDescription.xml
+# *before* fmpy reads the archive or anything is extracted
+
+
+#: Largest total uncompressed size (bytes) an FMU archive may declare (zip-bomb guard). The
+#: truth helicopter is well below 1 MB; zipfile never inflates a member beyond the size its
+#: directory entry declares, so this bounds what extraction can write.
+MAX_ARCHIVE_BYTES = 1 << 30
+#: Largest modelDescription.xml read into memory, bytes.
+MAX_DESCRIPTION_BYTES = 64 << 20
+#: FMI versions load_fmu runs (FMI 2.0 model exchange + co-simulation).
+SUPPORTED_FMI_VERSIONS = ("2.0",)
+#: Leading bytes of a shared library, by extension (ELF, Mach-O thin/fat, PE).
+_LIBRARY_MAGIC = {
+    ".so": (b"\x7fELF",),
+    ".dylib": (b"\xcf\xfa\xed\xfe", b"\xce\xfa\xed\xfe", b"\xca\xfe\xba\xbe"),
+    ".dll": (b"MZ",),
+}
+_C_IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def _unsafe_member(info: zipfile.ZipInfo) -> str | None:
+    """Why ``info`` must not be extracted (absolute path, ``..``, symlink...), or None."""
+    name = info.filename
+    parts = re.split(r"[/\\]", name)
+    if name.startswith(("/", "\\")) or re.match(r"[A-Za-z]:", name):
+        return "has an absolute path"
+    if ".." in parts:
+        return "has a '..' path component (path traversal)"
+    if "\0" in name:
+        return "has a NUL byte in its name"
+    mode = (info.external_attr >> 16) & 0o170000
+    if mode == 0o120000:
+        return "is a symbolic link"
+    if mode not in (0, 0o100000, 0o040000):
+        return "is a special file (device, FIFO or socket)"
+    if info.flag_bits & 0x1:
+        return "is encrypted"
+    return None
+
+
+def inspect_archive(path: str | os.PathLike, *, interfaces=("coSimulation", "modelExchange"),
+                    check_binary: bool = True) -> dict:
+    """Check an FMU archive without extracting it; raise FMUError on anything hostile.
+
+    Refused, each with a one-line :class:`~sysid.errors.FMUError` naming the archive and the
+    problem: a file that is not a zip archive; members with absolute paths, ``..``
+    components, symbolic links, special files or encryption; duplicated member names; a total
+    declared uncompressed size above :data:`MAX_ARCHIVE_BYTES` (zip bomb); a missing, oversized
+    or malformed ``modelDescription.xml``; an FMI version other than 2.0; a missing GUID,
+    a missing interface in ``interfaces`` or a model identifier that is not a C identifier;
+    and (``check_binary``) a missing binary ``binaries/<platform>/<identifier><ext>`` for
+    each interface, or one that is not a shared library of this platform.
+
+    Returns ``{"fmi_version", "guid", "model_name", "identifiers": {interface: identifier},
+    "members": [names]}``.
+    """
+    from xml.etree import ElementTree
+
+    from fmpy import platform, sharedLibraryExtension
+
+    path = Path(path)
+    where = f"FMU {path}"
+    if not path.is_file():
+        raise FMUError(f"FMU file {path} does not exist")
+    try:
+        zf = zipfile.ZipFile(path)
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, ValueError) as exc:
+        raise FMUError(f"{where} is not a valid FMU: not a readable zip archive "
+                       f"({type(exc).__name__}: {exc})") from None
+    with zf:
+        infos = zf.infolist()
+        names = [i.filename for i in infos]
+        seen = set()
+        total = 0
+        for info in infos:
+            problem = _unsafe_member(info)
+            if problem:
+                raise FMUError(f"{where} refused: archive member {info.filename!r} {problem}")
+            if info.filename in seen:
+                raise FMUError(f"{where} refused: archive member {info.filename!r} appears "
+                               "twice")
+            seen.add(info.filename)
+            total += info.file_size
+        if total > MAX_ARCHIVE_BYTES:
+            raise FMUError(f"{where} refused: its members declare {total} bytes uncompressed, "
+                           f"more than the limit of {MAX_ARCHIVE_BYTES} bytes (zip bomb?)")
+        if "modelDescription.xml" not in seen:
+            raise FMUError(f"{where} is not a valid FMU: no modelDescription.xml at the top "
+                           "of the archive")
+        md_info = zf.getinfo("modelDescription.xml")
+        if md_info.file_size > MAX_DESCRIPTION_BYTES:
+            raise FMUError(f"{where} refused: modelDescription.xml declares "
+                           f"{md_info.file_size} bytes (limit {MAX_DESCRIPTION_BYTES})")
+        try:
+            text = zf.read(md_info)
+        except Exception as exc:  # bad CRC, unsupported compression, truncated data
+            raise FMUError(f"{where} is not a valid FMU: cannot read modelDescription.xml "
+                           f"({type(exc).__name__}: {exc})") from None
+        if b"<!DOCTYPE" in text or b"<!ENTITY" in text:
+            raise FMUError(f"{where} refused: modelDescription.xml has a DOCTYPE/ENTITY "
+                           "declaration (not used by FMI; entity expansion is refused)")
+        try:
+            root = ElementTree.fromstring(text)
+        except ElementTree.ParseError as exc:
+            raise FMUError(f"{where} is not a valid FMU: modelDescription.xml is not "
+                           f"well-formed XML ({exc})") from None
+        if root.tag != "fmiModelDescription":
+            raise FMUError(f"{where} is not a valid FMU: modelDescription.xml has root element "
+                           f"<{root.tag}>, expected <fmiModelDescription>")
+        version = root.get("fmiVersion", "")
+        if version not in SUPPORTED_FMI_VERSIONS:
+            raise FMUError(f"{where}: FMI version {version or '(missing)'!r} is not supported; "
+                           f"expected an FMI {' or '.join(SUPPORTED_FMI_VERSIONS)} FMU")
+        guid = root.get("guid", "")
+        if not guid.strip():
+            raise FMUError(f"{where} is not a valid FMU: modelDescription.xml has no guid")
+        identifiers = {}
+        for kind in interfaces:
+            tag = kind[0].upper() + kind[1:]
+            element = root.find(tag)
+            if element is None:
+                raise FMUError(f"{where}: modelDescription.xml has no <{tag}> element; "
+                               f"expected an FMI 2.0 FMU with {' and '.join(interfaces)}")
+            identifier = element.get("modelIdentifier", "")
+            if not _C_IDENTIFIER.fullmatch(identifier):
+                raise FMUError(f"{where}: <{tag}> modelIdentifier {identifier!r} is not a C "
+                               "identifier")
+            identifiers[kind] = identifier
+        if check_binary:
+            has_sources = any(n.startswith("sources/") and n.endswith(".c") for n in names)
+            magic = _LIBRARY_MAGIC.get(sharedLibraryExtension, ())
+            for kind, identifier in identifiers.items():
+                binary = f"binaries/{platform}/{identifier}{sharedLibraryExtension}"
+                if binary not in seen:
+                    hint = (" (it carries C sources, but sysid does not compile source FMUs: "
+                            "build a binary with fmpy first)" if has_sources else "")
+                    raise FMUError(f"{where} has no binary for platform {platform} "
+                                   f"(expected {binary}){hint}")
+                try:
+                    with zf.open(binary) as fh:
+                        head = fh.read(4)
+                except Exception as exc:
+                    raise FMUError(f"{where}: cannot read {binary} "
+                                   f"({type(exc).__name__}: {exc})") from None
+                if magic and not head.startswith(magic):
+                    raise FMUError(f"{where}: {binary} is not a shared library for "
+                                   f"{platform} (leading bytes {head!r})")
+    return {"fmi_version": version, "guid": guid, "model_name": root.get("modelName", ""),
+            "identifiers": identifiers, "members": names}
+
+
 def _extract(path: Path) -> Path:
-    """Extract the FMU once into the cache (atomically: temp folder, then rename)."""
+    """Extract the FMU once into the cache (atomically: temp folder, then rename).
+
+    Call :func:`inspect_archive` first: only archives whose members are all safe reach here.
+    """
     target = cache_dir() / "unzipped" / _file_digest(path)[:16]
     if (target / "modelDescription.xml").is_file():
         return target
@@ -115,6 +279,11 @@ def _extract(path: Path) -> Path:
     tmp = Path(tempfile.mkdtemp(prefix=".extract-", dir=target.parent))
     try:
         with zipfile.ZipFile(path) as zf:
+            for info in zf.infolist():
+                problem = _unsafe_member(info)  # the archive may have changed since inspection
+                if problem:
+                    raise FMUError(f"FMU {path} refused: archive member {info.filename!r} "
+                                   f"{problem}")
             zf.extractall(tmp)
         try:
             os.replace(tmp, target)
@@ -132,8 +301,10 @@ _LOADED: dict[tuple[str, float], FMUModel] = {}
 def load_fmu(path: str | os.PathLike | None = None) -> FMUModel:
     """Load an FMU (default: the truth helicopter, built on first use).
 
-    Raises :class:`~sysid.errors.FMUError` with a one-line message if the file is missing,
-    not an FMU archive or lacks a binary for this platform.
+    The archive is checked by :func:`inspect_archive` before fmpy reads it or anything is
+    extracted. Raises :class:`~sysid.errors.FMUError` with a one-line message naming the file
+    if it is missing, not an FMU archive, hostile (path traversal, symlinks, zip bomb), not
+    FMI 2.0 with both interfaces, or lacks a binary for this platform.
     """
     from fmpy import platform, read_model_description
 
@@ -147,6 +318,7 @@ def load_fmu(path: str | os.PathLike | None = None) -> FMUModel:
     key = (str(path.resolve()), path.stat().st_mtime)
     if key in _LOADED:
         return _LOADED[key]
+    inspect_archive(path)
     try:
         description = read_model_description(str(path), validate=False)
     except zipfile.BadZipFile:

@@ -73,9 +73,9 @@ class CoSimulation:
                  name: str | None = None):
         self.model: FMUModel = fmu if isinstance(fmu, FMUModel) else load_fmu(fmu)
         self.output_names = tuple(outputs)
-        unknown = [n for n in self.output_names if n not in self.model.variables]
-        if unknown:
-            raise FMUError(f"{self.model.path.name} has no outputs {unknown}")
+        # Every missing input and output in one message (a foreign FMU lacks many).
+        self.model.require(dict.fromkeys((*CONTROLS, *GUSTS, *self.output_names)),
+                           "for co-simulation of the helicopter")
         #: Analysis unit of each output.
         self.output_units = tuple(analysis_unit(self.model, n) for n in self.output_names)
         self._factor = np.array([si_to_analysis(self.model, n) for n in self.output_names])

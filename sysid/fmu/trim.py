@@ -272,6 +272,11 @@ def trim(airspeed_kt: float = 0.0, *, fmu=None, parameters: dict | None = None) 
         raise InputDataError(f"trim airspeed must be between 0 and {MAX_AIRSPEED_KT:g} kt, "
                              f"got {airspeed_kt!r}")
     model = fmu if isinstance(fmu, FMUModel) else load_fmu(fmu)
+    model.require((*CONTROLS, *RIGID_BODY, "mass"), "to trim the helicopter")
+    missing = [s for s in RIGID_BODY if s not in model.state_names]
+    if missing:
+        raise FMUError(f"{model.path} cannot be used to trim the helicopter: {missing} are "
+                       f"not continuous states (states: {list(model.state_names)})")
     parameters = dict(parameters or {})
     f = DerivativeFunction(model, parameters)
     try:
