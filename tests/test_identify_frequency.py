@@ -396,3 +396,25 @@ def test_cli_identify_errors(tmp_path, capsys):
     io.update_campaign(path, "maneuvers", xr.Dataset())
     assert main(["identify", str(path), "--quiet"]) == 1
     assert "frequency_response" in capsys.readouterr().err
+
+
+def test_fallback_coherence_admits_weak_pairs_only():
+    """A pair with no range at the guideline is admitted at the fallback threshold and
+    reported; pairs that reach the guideline keep their strict range."""
+    from sysid.identify.frequency_domain import select_fit_data
+
+    omega = np.logspace(-1, 1.5, 60)
+    H = 1.0 / (1j * omega + 1.0)
+    strong = np.full(omega.size, 0.9)
+    weak = np.where((omega > 1) & (omega < 5), 0.5, 0.2)
+    fr = xr.Dataset(
+        {"H": (("output", "input", "frequency"), np.stack([[H], [H]])),
+         "coherence": (("output", "input", "frequency"), np.stack([[strong], [weak]]))},
+        coords={"output": ["q", "p"], "input": ["lon"], "frequency": omega})
+    strict = select_fit_data(fr, "q/lon,p/lon")
+    assert "p/lon" in strict.skipped and not strict.weak
+    relaxed = select_fit_data(fr, "q/lon,p/lon", fallback_coherence_min=0.4)
+    assert relaxed.weak == {"p/lon": 0.4} and not relaxed.skipped
+    lo, hi = relaxed.ranges["p/lon"]
+    assert 1 < lo and hi < 5                       # only the part above the fallback
+    assert relaxed.ranges["q/lon"] == strict.ranges["q/lon"]

@@ -44,6 +44,9 @@ def register(subparsers) -> None:
                    default="auto",
                    help="start values: the campaign's /linearization when present (auto), or "
                         "the frequency-domain equation error, or the structure's values")
+    p.add_argument("--fallback-coherence-min", type=float, default=None,
+                   help="admit a pair with no range at --coherence-min at this lower "
+                        "coherence instead of skipping it (weak off-axis responses)")
     p.add_argument("--frequency-range", default=None, metavar="MIN,MAX",
                    help="fit band in rad/s for every pair (default: the structure's own "
                         "validity band, e.g. 0.1,8 for hover_6dof)")
@@ -122,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
         start = structure.theta0
     result = identify_frequency_domain(fr, structure, pairs=args.pairs, start=start,
                                        frequency_range=_band(args.frequency_range),
+                                       fallback_coherence_min=args.fallback_coherence_min,
                                        coherence_min=args.coherence_min, n_points=args.points,
                                        reduce=not args.no_reduction, seed=args.seed,
                                        progress=progress)

@@ -45,7 +45,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -142,6 +142,8 @@ class FitData:
         ``"out/in" -> (omega_min, omega_max)``.
     coherence_variable : str
         ``"partial_coherence"`` or ``"coherence"``.
+    weak : dict
+        Pairs admitted at the fallback coherence threshold (see :func:`select_fit_data`).
     """
 
     pairs: tuple
@@ -157,6 +159,7 @@ class FitData:
     n_points: int
     coherence_min: float
     coherence_variable: str
+    weak: dict = field(default_factory=dict)  #: ``"out/in" -> fallback threshold used``
 
     @property
     def H(self) -> np.ndarray:
@@ -179,7 +182,8 @@ def _longest_run(mask: np.ndarray) -> tuple[int, int] | None:
 def select_fit_data(fr: xr.Dataset, pairs=None, *, coherence_min: float = COHERENCE_MIN,
                     n_points: int = N_POINTS,
                     ranges: Mapping[str, tuple[float, float]] | None = None,
-                    frequency_range: tuple[float, float] | None = None) -> FitData:
+                    frequency_range: tuple[float, float] | None = None,
+                    fallback_coherence_min: float | None = None) -> FitData:
     """Choose the fitted points of each pair from a composite frequency-response Dataset.
 
     Parameters
@@ -199,6 +203,11 @@ def select_fit_data(fr: xr.Dataset, pairs=None, *, coherence_min: float = COHERE
         ``"q/lon" -> (omega_min, omega_max)`` limiting a pair's range (rad/s).
     frequency_range : (float, float), optional
         Global limit for every pair (rad/s).
+    fallback_coherence_min : float, optional
+        A pair with no coherent range at ``coherence_min`` is retried at this lower
+        threshold (and reported in ``FitData.weak``) instead of being skipped. Meant for weak
+        off-axis responses that still constrain a derivative; the coherence weight
+        ``W_gamma`` keeps them from dominating. Default: no fallback.
 
     Returns
     -------
@@ -225,7 +234,7 @@ def select_fit_data(fr: xr.Dataset, pairs=None, *, coherence_min: float = COHERE
     ranges = dict(ranges or {})
     outputs = [str(x) for x in fr["output"].values]
     inputs = [str(x) for x in fr["input"].values]
-    kept, skipped = [], {}
+    kept, skipped, weak = [], {}, {}
     cols = {k: [] for k in ("pair", "omega", "mag", "phase", "g2", "eps")}
     used_ranges = {}
     for pair in pairs:
@@ -237,12 +246,15 @@ def select_fit_data(fr: xr.Dataset, pairs=None, *, coherence_min: float = COHERE
         g2 = np.asarray(fr[cvar].sel(output=pair[0], input=pair[1]).values, float)[order]
         eps = (np.asarray(fr["random_error"].sel(output=pair[0], input=pair[1]).values,
                           float)[order] if "random_error" in fr else np.full(len(H), np.nan))
-        ok = np.isfinite(H) & np.isfinite(g2) & (g2 >= coherence_min) & (np.abs(H) > 0)
-        ok &= omega_all > 0
+        valid = np.isfinite(H) & np.isfinite(g2) & (np.abs(H) > 0) & (omega_all > 0)
         for lim in (frequency_range, ranges.get(name)):
             if lim is not None:
-                ok &= (omega_all >= lim[0]) & (omega_all <= lim[1])
-        run = _longest_run(ok)
+                valid &= (omega_all >= lim[0]) & (omega_all <= lim[1])
+        run = _longest_run(valid & (g2 >= coherence_min))
+        if (run is None or run[1] - run[0] < 2) and fallback_coherence_min is not None:
+            run = _longest_run(valid & (g2 >= fallback_coherence_min))
+            if run is not None and run[1] - run[0] >= 2:
+                weak[name] = float(fallback_coherence_min)
         if run is None or run[1] - run[0] < 2:
             skipped[name] = f"no coherent range (coherence {cvar} >= {coherence_min} at fewer " \
                             f"than 2 consecutive frequencies)"
@@ -270,7 +282,7 @@ def select_fit_data(fr: xr.Dataset, pairs=None, *, coherence_min: float = COHERE
     weight = (20.0 / n_points) * coherence_weight(cat["g2"])
     return FitData(tuple(kept), skipped, cat["pair"].astype(int), cat["omega"], cat["mag"],
                    cat["phase"], cat["g2"], cat["eps"], weight, used_ranges, int(n_points),
-                   float(coherence_min), cvar)
+                   float(coherence_min), cvar, weak)
 
 
 def _wrap180(x):
@@ -648,6 +660,7 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
                               coherence_min: float = COHERENCE_MIN, n_points: int = N_POINTS,
                               ranges: Mapping[str, tuple[float, float]] | None = None,
                               frequency_range: tuple[float, float] | None = None,
+                              fallback_coherence_min: float | None = None,
                               reduce: bool = True, cr_max: float = GUIDELINES["cr_max"],
                               insensitivity_max: float = GUIDELINES["insensitivity_max"],
                               max_cost_increase: float = GUIDELINES["max_cost_increase"],
@@ -671,8 +684,8 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
         Start values: a model Dataset (e.g. the truth model's quasi-steady linearisation) or
         the free-parameter vector. Default: frequency-domain equation error when every state
         is measured, else the structure's values.
-    coherence_min, n_points, ranges, frequency_range
-        Point selection, see :func:`select_fit_data` (defaults 0.6 and 20). Without
+    coherence_min, n_points, ranges, frequency_range, fallback_coherence_min
+        Point selection, see :func:`select_fit_data` (defaults 0.6 and 20, no fallback). Without
         ``frequency_range`` the structure's own validity band (``frequency_range`` in its TOML
         file, e.g. below the rotor modes for a quasi-steady model) limits every pair.
     reduce : bool
@@ -698,9 +711,13 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
     if frequency_range is None and "fit_omega_max" in structure.attrs:
         frequency_range = (structure.attrs["fit_omega_min"], structure.attrs["fit_omega_max"])
     data = select_fit_data(fr, pairs, coherence_min=coherence_min, n_points=n_points,
-                           ranges=ranges, frequency_range=frequency_range)
+                           ranges=ranges, frequency_range=frequency_range,
+                           fallback_coherence_min=fallback_coherence_min)
     for name, reason in data.skipped.items():
         progress.message(f"[sysid] identify: pair {name} skipped: {reason}")
+    for name, threshold in data.weak.items():
+        progress.message(f"[sysid] identify: pair {name} admitted at coherence >= {threshold}"
+                         f" (no range at {coherence_min})")
     if len(structure.free_index) == 0:
         raise IdentificationError(f"structure {structure.name!r} has no free parameters")
     counter = {"cost": 0, "jacobian": 0}
