@@ -32,7 +32,6 @@ import hashlib
 import math
 import re
 import shutil
-import subprocess
 import sys
 import tempfile
 import uuid
@@ -664,29 +663,13 @@ def _header_model(variables: list[FmuVariable], identifier: str):
 
 def compile_library(src: Path, identifier: str, out_dir: Path) -> Path:
     """Compile ``src/*.c`` into the FMU's shared library with the machine's C compiler
-    (``$CC`` or cc/gcc/clang, flags of :mod:`sysid.fmu._build`). Raises FMUError with the
-    compiler's first error line."""
-    from sysid.fmu._build import CFLAGS, find_compiler, platform_folder
+    (the same compiler and flags as the truth FMU). Raises FMUError with the compiler's
+    first error line."""
+    from sysid.fmu._build import compile_shared_library, platform_folder
 
     _, ext = platform_folder()
-    library = out_dir / f"{identifier}{ext}"
-    compiler = find_compiler()
-    flags = [f for f in CFLAGS if not (sys.platform == "win32" and f == "-fPIC")]
-    c_files = sorted(str(p) for p in src.glob("*.c"))
-    cmd = [*compiler, *flags, "-I", str(src), *c_files, "-o", str(library), "-lm"]
-    try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-    except OSError as exc:
-        raise FMUError(f"could not run the C compiler {compiler[0]!r}: {exc}") from None
-    except subprocess.TimeoutExpired:
-        raise FMUError(f"the C compiler {compiler[0]!r} did not finish within 300 s") from None
-    if proc.returncode != 0 or not library.is_file():
-        text = proc.stderr + proc.stdout
-        first = next((ln for ln in text.splitlines() if "error" in ln.lower()),
-                     text.strip()[:300] or f"exit status {proc.returncode}, no output")
-        raise FMUError(f"compiling the exported FMU {identifier} with {' '.join(compiler)} "
-                       f"failed: {first.strip()}")
-    return library
+    return compile_shared_library(sorted(src.glob("*.c")), src, out_dir / f"{identifier}{ext}",
+                                  what=f"the exported FMU {identifier}")
 
 
 def _default_history(spec: ExportSpec, step_size: float) -> int:

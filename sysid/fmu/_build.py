@@ -405,14 +405,26 @@ def _compile(model: ModelSources, common: Path, workdir: Path) -> tuple[Path, Pa
         shutil.copy2(fmi_header_dir() / name, src / name)
     digest = source_hash(model, common)
     (src / "model_variables.h").write_text(generate_header(model, _guid(digest)))
-    platform, ext = platform_folder()
+    _, ext = platform_folder()
     library = workdir / f"{model.identifier}{ext}"
+    c_files = [src / "fmi2_functions.c", *(src / n for n in model.sources)]
+    compile_shared_library(c_files, src, library, what=f"the {model.identifier} FMU",
+                           log=cache_dir() / f"build-{model.identifier}.log")
+    return library, src
+
+
+def compile_shared_library(c_files, include_dir: Path, library: Path, *, what: str,
+                           log: Path | None = None) -> Path:
+    """Compile ``c_files`` into the shared library ``library`` with the machine's C compiler
+    (``$CC`` or cc/gcc/clang) and :data:`CFLAGS`.
+
+    Raises :class:`FMUError` with the compiler's first error line (and writes the full
+    command and output to ``log`` when given); no compiler is one clear line too.
+    """
     compiler = find_compiler()
-    c_files = [str(src / "fmi2_functions.c"), *(str(src / n) for n in model.sources)]
-    flags = list(CFLAGS)
-    if sys.platform == "win32":
-        flags.remove("-fPIC")
-    cmd = [*compiler, *flags, "-I", str(src), *c_files, "-o", str(library), "-lm"]
+    flags = [f for f in CFLAGS if not (sys.platform == "win32" and f == "-fPIC")]
+    cmd = [*compiler, *flags, "-I", str(include_dir), *(str(f) for f in c_files),
+           "-o", str(library), "-lm"]
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     except OSError as exc:
@@ -420,13 +432,16 @@ def _compile(model: ModelSources, common: Path, workdir: Path) -> tuple[Path, Pa
     except subprocess.TimeoutExpired:
         raise FMUError(f"the C compiler {compiler[0]!r} did not finish within 300 s") from None
     if proc.returncode != 0 or not library.is_file():
-        log = cache_dir() / f"build-{model.identifier}.log"
-        log.write_text(" ".join(cmd) + "\n\n" + proc.stdout + proc.stderr)
-        first = next((line for line in (proc.stderr + proc.stdout).splitlines()
-                      if "error" in line.lower()), proc.stderr.strip()[:200])
-        raise FMUError(f"compiling the {model.identifier} FMU failed: {first.strip()} "
-                       f"(full log: {log})")
-    return library, src
+        text = proc.stderr + proc.stdout
+        first = next((line for line in text.splitlines() if "error" in line.lower()),
+                     text.strip()[:300] or f"exit status {proc.returncode}, no output")
+        where = ""
+        if log is not None:
+            log.write_text(" ".join(cmd) + "\n\n" + text)
+            where = f" (full log: {log})"
+        raise FMUError(f"compiling {what} failed: {first.strip()} "
+                       f"(compiler: {' '.join(compiler)}){where}")
+    return library
 
 
 def fmu_cache_path(model: ModelSources, common: Path) -> Path:

@@ -55,7 +55,8 @@ import xarray as xr
 from sysid.errors import IdentificationError, InputDataError
 from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
                                       stepwise_reduction)
-from sysid.identify.statistics import ParameterStatistics, parameter_statistics
+from sysid.identify.statistics import (ParameterStatistics, parameter_rows, parameter_statistics,
+                                      perturbed_start)
 from sysid.models import LinearStructure
 from sysid.util import Progress
 
@@ -618,19 +619,7 @@ class FrequencyFitResult:
         """Derivative table like the paper's Tables 2-3, delays, cost per pair and J_ave."""
         m = self.model
         lines = [f"Frequency-domain identification ({self.structure.name}), start: {self.start}",
-                 f"{'parameter':<12}{'value':>14}{'CR %':>9}{'I %':>9}"]
-        free = m["free"].values.astype(bool)
-        for k, name in enumerate(m["parameter"].values):
-            if not free[k]:
-                continue
-            flag = "" if bool(m["identifiable"].values[k]) else "  unidentifiable"
-            lines.append(f"{str(name):<12}{float(m['value'][k]):>14.5g}"
-                         f"{_pct(float(m['cramer_rao_percent'][k])):>9}"
-                         f"{_pct(float(m['insensitivity_percent'][k])):>9}{flag}")
-        delays = [(str(n), float(m["value"][k])) for k, n in enumerate(m["parameter"].values)
-                  if str(m["matrix"].values[k]) == "delay" and free[k]]
-        if delays:
-            lines.append("delays: " + ", ".join(f"{n} = {v * 1000:.1f} ms" for n, v in delays))
+                 *parameter_rows(m)]
         lines.append("cost per pair: " + ", ".join(
             f"{k} {v:.2f}" for k, v in self.pair_cost.items() if k not in ("J", "J_ave")))
         lines.append(f"J_ave = {self.J_ave:.3f} over {len(self.data.pairs)} pairs")
@@ -641,18 +630,6 @@ class FrequencyFitResult:
             lines.append("model reduction:")
             lines.append(self.reduction.table())
         return "\n".join(lines)
-
-
-def _pct(x: float) -> str:
-    return "inf" if not np.isfinite(x) else f"{x:.1f}"
-
-
-def _perturb(theta, structure: LinearStructure, seed: int, fraction: float) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    lo, hi = structure.bounds
-    scale = np.where(np.abs(theta) > 0, np.abs(theta), 1e-3)
-    out = theta + fraction * scale * rng.uniform(-1.0, 1.0, size=theta.shape)
-    return np.clip(out, lo, hi)
 
 
 def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pairs=None,
@@ -758,7 +735,7 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
                 protected=protected, progress=progress)
         final = reduction.final.payload
     # Restart from the perturbed solution to confirm the minimum.
-    theta_r = _perturb(final.theta, final.structure, seed, restart_fraction)
+    theta_r = perturbed_start(final.theta, final.structure, seed, restart_fraction)
     again = _converge(final.structure, data, theta_r, **kw)
     restart = {"J_ave_first": final.J_ave, "J_ave_restart": again.J_ave,
                "fraction": restart_fraction, "seed": seed}

@@ -120,6 +120,38 @@ def _pct(x: float) -> str:
     return "inf" if not np.isfinite(x) else f"{x:.1f}"
 
 
+def parameter_rows(model, *, absolute_cr: bool = False) -> list[str]:
+    """Table lines (header first) of the free parameters of a model Dataset: value,
+    optionally the absolute Cramer-Rao bound, CR % and insensitivity %, and an
+    ``unidentifiable`` flag; followed by one line listing the free delays in ms."""
+    head = f"{'parameter':<12}{'value':>14}" + (f"{'CR':>12}" if absolute_cr else "")
+    lines = [head + f"{'CR %':>9}{'I %':>9}"]
+    free = model["free"].values.astype(bool)
+    names = [str(n) for n in model["parameter"].values]
+    for k, name in enumerate(names):
+        if not free[k]:
+            continue
+        flag = "" if bool(model["identifiable"].values[k]) else "  unidentifiable"
+        cr = f"{float(model['cramer_rao'][k]):>12.4g}" if absolute_cr else ""
+        lines.append(f"{name:<12}{float(model['value'][k]):>14.5g}{cr}"
+                     f"{_pct(float(model['cramer_rao_percent'][k])):>9}"
+                     f"{_pct(float(model['insensitivity_percent'][k])):>9}{flag}")
+    delays = [(n, float(model["value"][k])) for k, n in enumerate(names)
+              if str(model["matrix"].values[k]) == "delay" and free[k]]
+    if delays:
+        lines.append("delays: " + ", ".join(f"{n} = {v * 1000:.1f} ms" for n, v in delays))
+    return lines
+
+
+def perturbed_start(theta, structure, seed: int, fraction: float) -> np.ndarray:
+    """``theta`` moved by up to ``+-fraction`` (relative; 1e-3 absolute for zeros), seeded,
+    and clipped to the structure's bounds: the restart that confirms a minimum."""
+    rng = np.random.default_rng(seed)
+    lo, hi = structure.bounds
+    scale = np.where(np.abs(theta) > 0, np.abs(theta), 1e-3)
+    return np.clip(theta + fraction * scale * rng.uniform(-1.0, 1.0, np.shape(theta)), lo, hi)
+
+
 def parameter_statistics(jacobian, values, names: Sequence[str], *, scale: float = 1.0,
                          rcond: float = RCOND) -> ParameterStatistics:
     """Cramer-Rao bounds, insensitivities and correlations from a weighted residual Jacobian.

@@ -90,7 +90,8 @@ import xarray as xr
 
 from sysid.errors import IdentificationError, InputDataError
 from sysid.identify.reduction import GUIDELINES, FitOutcome, ReductionResult, stepwise_reduction
-from sysid.identify.statistics import ParameterStatistics, parameter_statistics
+from sysid.identify.statistics import (ParameterStatistics, parameter_rows, parameter_statistics,
+                                      perturbed_start)
 from sysid.models import LinearStructure, propagate
 
 __all__ = [
@@ -760,20 +761,7 @@ class TimeFitResult:
         m = self.model
         lines = [f"Time-domain identification ({self.structure.name}), output error on "
                  f"{len(self.records)} record(s): {', '.join(self.records)}; start: {self.start}",
-                 f"{'parameter':<12}{'value':>14}{'CR':>12}{'CR %':>9}{'I %':>9}"]
-        free = m["free"].values.astype(bool)
-        for k, name in enumerate(m["parameter"].values):
-            if not free[k]:
-                continue
-            flag = "" if bool(m["identifiable"].values[k]) else "  unidentifiable"
-            lines.append(f"{str(name):<12}{float(m['value'][k]):>14.5g}"
-                         f"{float(m['cramer_rao'][k]):>12.4g}"
-                         f"{_pct(float(m['cramer_rao_percent'][k])):>9}"
-                         f"{_pct(float(m['insensitivity_percent'][k])):>9}{flag}")
-        delays = [(str(n), float(m["value"][k])) for k, n in enumerate(m["parameter"].values)
-                  if str(m["matrix"].values[k]) == "delay" and free[k]]
-        if delays:
-            lines.append("delays: " + ", ".join(f"{n} = {v * 1000:.1f} ms" for n, v in delays))
+                 *parameter_rows(m, absolute_cr=True)]
         lines.append("noise std (from residuals): " + ", ".join(
             f"{o} {math.sqrt(v):.4g}" for o, v in self.noise_variance.items()))
         lines.append("output biases (Cramer-Rao bound):")
@@ -786,17 +774,6 @@ class TimeFitResult:
             lines.append("model reduction:")
             lines.append(self.reduction.table())
         return "\n".join(lines)
-
-
-def _pct(x: float) -> str:
-    return "inf" if not np.isfinite(x) else f"{x:.1f}"
-
-
-def _perturb(theta, structure: LinearStructure, seed: int, fraction: float) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    lo, hi = structure.bounds
-    scale = np.where(np.abs(theta) > 0, np.abs(theta), 1e-3)
-    return np.clip(theta + fraction * scale * rng.uniform(-1.0, 1.0, theta.shape), lo, hi)
 
 
 # --------------------------------------------------------------------------------------------
@@ -910,7 +887,7 @@ def identify_time_domain(records, structure: LinearStructure, *,
         final = reduction.final.payload
     restart = {}
     if restart_fraction > 0:
-        again = converge(final.structure, _perturb(final.theta, final.structure, seed,
+        again = converge(final.structure, perturbed_start(final.theta, final.structure, seed,
                                                    restart_fraction), final.R)
         restart = {"cost_first": final.cost, "cost_restart": again.cost,
                    "fraction": restart_fraction, "seed": seed}
