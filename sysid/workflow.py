@@ -100,6 +100,13 @@ def _cli(*args: str) -> None:
 def run_study(out_dir: str | Path, settings: StudySettings | None = None, *,
               quiet: bool = False) -> Path:
     """Run every stage at one flight condition; return the report path."""
+    from sysid.util import blas_threads
+
+    with blas_threads():
+        return _run_study(out_dir, settings, quiet=quiet)
+
+
+def _run_study(out_dir: str | Path, settings: StudySettings | None, *, quiet: bool) -> Path:
     from sysid import fmu
     from sysid.frequency_response import siso_frequency_response
     from sysid.io import maneuvers, read_campaign, update_campaign

@@ -6,11 +6,12 @@ marked ``@pytest.mark.fmu``.
 """
 
 import pytest
-from threadpoolctl import threadpool_limits
+from sysid.util import blas_threads
 
-# One BLAS thread: the suite is dominated by many mid-sized matrix products, which
-# multi-threaded OpenBLAS slows by up to 10x on the 2-core CI machine (measured).
-_BLAS_LIMIT = threadpool_limits(limits=1, user_api="blas")
+# One BLAS thread for the whole session, as the sysid command and workflows use: the suite
+# is many mid-sized matrix products, which multi-threaded OpenBLAS slows by up to 10x on the
+# 2-core CI machine (measured).
+_BLAS_LIMIT = blas_threads()
 
 
 @pytest.fixture(scope="session")

@@ -38,8 +38,11 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    from sysid.util import blas_threads
+
     try:
-        return int(args.func(args) or 0)
+        with blas_threads():
+            return int(args.func(args) or 0)
     except SysidError as exc:
         # A user-caused problem: one clear line, no traceback from inside a library.
         print(f"sysid {args.command}: error: {exc}", file=sys.stderr)
