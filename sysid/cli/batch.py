@@ -1,0 +1,44 @@
+"""``sysid batch``: the whole identification chain at many flight conditions on Dask."""
+
+from __future__ import annotations
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "batch", help="run the study at many flight conditions / seeds on Dask",
+        description="Run the full identification chain for a list of flight conditions and "
+                    "noise seeds as independent Dask tasks (a local cluster of processes by "
+                    "default, an existing scheduler with --scheduler), combine the results "
+                    "into one netCDF file with a condition dimension, plot every derivative "
+                    "against airspeed and summarise the Monte Carlo scatter. A failing "
+                    "condition is reported and the others complete; re-running resumes from "
+                    "what is on disk.")
+    p.add_argument("speeds", nargs="?", default=None,
+                   help="speeds TOML (speeds = [...], seeds = [...], noise, quick, "
+                        "[structures]); default: 0, 20, 40, 60, 80, 100 kt, one seed")
+    p.add_argument("-o", "--output", default="reports/batch", help="output folder")
+    p.add_argument("--scheduler", default=None, metavar="tcp://host:port",
+                   help="address of an existing Dask scheduler (default: a LocalCluster)")
+    p.add_argument("--workers", type=int, default=2,
+                   help="worker processes of the local cluster (default 2)")
+    p.add_argument("--quick", action="store_true",
+                   help="reduced campaign per condition (fast check; noisier results)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from sysid.batch import default_conditions, format_summary, load_conditions, run_batch
+    import dataclasses
+
+    if args.speeds:
+        conditions = load_conditions(args.speeds)
+    else:
+        conditions = default_conditions()
+    if args.quick:
+        conditions = [dataclasses.replace(c, quick=True) for c in conditions]
+    result = run_batch(conditions, args.output, scheduler=args.scheduler,
+                       n_workers=args.workers, quiet=args.quiet)
+    print(format_summary(result.dataset))
+    print(result.out_dir / "batch.nc")
+    return 0 if not result.failures else 3
