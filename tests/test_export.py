@@ -685,3 +685,31 @@ def test_cli_export_and_validate(tmp_path, capsys):
     val = read_campaign(path)["validation/frequency_domain"].to_dataset()
     assert float(val.roundtrip_cs.max()) < 1e-6
     assert np.all(val.fraction_inside.values == 1.0)
+
+
+def test_validate_reports_an_unusable_model_and_validates_the_others(tmp_path, capsys,
+                                                                    monkeypatch):
+    """A model whose exported FMU cannot be simulated (seen in a batch: a diverged fit with
+    derivatives near 1e19 made CVode fail) is a validation result stored and printed, not a
+    crash; the other models are still validated."""
+    from sysid import fmu_validation, io
+    from sysid.cli import main
+
+    real = fmu_validation.roundtrip_error
+
+    def failing_for_broken(model, fmu_path, inputs, **kwargs):
+        if "broken" in str(fmu_path):
+            raise RuntimeError("CVode error: the right-hand side failed repeatedly")
+        return real(model, fmu_path, inputs, **kwargs)
+
+    monkeypatch.setattr(fmu_validation, "roundtrip_error", failing_for_broken)
+    path = tmp_path / "campaign.nc"
+    io.update_campaign(path, "models/good", _model())
+    io.update_campaign(path, "models/broken", _model())
+    assert main(["validate", str(path), "--no-truth", "--quiet", "--fmu-dir",
+                 str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "broken: validation FAILED: RuntimeError: CVode error" in out
+    tree = io.read_campaign(path)
+    assert "CVode" in tree["validation/broken"].attrs["error"]
+    assert float(tree["validation/good"].to_dataset().roundtrip_cs.max()) < 1e-6

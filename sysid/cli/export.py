@@ -106,10 +106,24 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory(prefix="sysid-validate-") as tmp:
         fmu_dir = Path(args.fmu_dir) if args.fmu_dir else Path(tmp)
         for name, model in models.items():
-            ds = validate_model(name, model, fmu_dir=fmu_dir, truth=truth, trim=trim,
-                                frequency_response=fr, envelopes=envelopes, quiet=args.quiet)
+            try:
+                ds = validate_model(name, model, fmu_dir=fmu_dir, truth=truth, trim=trim,
+                                    frequency_response=fr, envelopes=envelopes,
+                                    quiet=args.quiet)
+            except Exception as exc:  # noqa: BLE001 - one model's failure is a result
+                # A model can be unusable (e.g. a diverged fit whose FMU CVode cannot
+                # integrate); that is a validation outcome to report and store, and the
+                # other models are still validated.
+                ds = xr.Dataset(attrs={"model": name,
+                                       "error": f"{type(exc).__name__}: {exc}"})
+                print(f"{name}: validation FAILED: {ds.attrs['error']}")
             update_campaign(args.campaign, f"validation/{name}", ds)
             rows.append((name, ds))
+    failed = [name for name, ds in rows if "error" in ds.attrs]
+    rows = [(name, ds) for name, ds in rows if "error" not in ds.attrs]
+    if not rows:
+        print(f"no model could be validated ({', '.join(failed)})")
+        return 1
     header = f"{'model':<20}{'CS err':>10}{'ME err':>10}{'J_rms':>8}{'TIC max':>9}"
     env_names = [] if fr is None else [str(e) for e in rows[0][1]["envelope"].values]
     header += "".join(f"{e[:12] + ' in':>16}" for e in env_names)
