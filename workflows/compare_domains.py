@@ -51,6 +51,8 @@ def comparison(tree: xr.DataTree, verification: str = "2311_*") -> dict:
             v = tree[f"validation/{m}"].to_dataset()
         except KeyError:
             continue
+        if "fraction_inside" not in v:  # validation failed for this model (error attr)
+            continue
         frac = v["fraction_inside"].sel(envelope="MUAD")
         for o in frac.output.values:
             for i in frac.input.values:
