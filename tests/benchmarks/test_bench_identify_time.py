@@ -76,6 +76,5 @@ def test_bench_identify_time_domain(benchmark):
     assert set(result.reduction.removed) == set(SPURIOUS)
     assert set(result.structure.free_names) == set(truth_values())
     assert set(freq.structure.free_names) == set(truth_values())
-    # Target < 20 s on one core (measured ~5 s with one BLAS thread); looser bound for a
-    # loaded machine with multi-threaded BLAS.
-    assert elapsed < 60.0
+    # Target < 20 s on one core (measured ~10 s with one BLAS thread); reported in
+    # extra_info beside the frequency-domain time, not asserted.
