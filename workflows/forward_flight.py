@@ -51,7 +51,10 @@ def conditioning_effect(tree: xr.DataTree, pairs=PAIRS, band=BAND,
 
     mimo = tree["frequency_response"].to_dataset()
     siso = tree["frequency_response_siso"].to_dataset()
-    lin = tree["linearization"].to_dataset()
+    # The full linearisation (rotor, inflow and actuator states) when the campaign has it:
+    # the quasi-steady one lacks their lag, which would swamp the effect of conditioning.
+    group = "linearization_full" if "linearization_full" in tree else "linearization"
+    lin = tree[group].to_dataset()
     omega = mimo.frequency.values
     truth = frequency_response(lin, omega)
     names, mag, phase, npts = [], [], [], []

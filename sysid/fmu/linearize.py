@@ -146,7 +146,8 @@ class Linearization:
     ----------
     full : xr.Dataset
         ``A (state_dot, state)``, ``B (state_dot, input)`` over every FMU state except
-        navigation, analysis units; ``eigenvalue (mode)``.
+        navigation, analysis units, with ``C = I`` and ``D = 0`` (every state an output);
+        ``eigenvalue (mode)``.
     quasi_steady : xr.Dataset
         The 6-DoF quasi-steady model per ``docs/data_model.md`` (method ``linearization``):
         ``A B C D delay trim_input trim_output``, named derivatives on the ``parameter``
@@ -191,10 +192,15 @@ def linearize(trim: TrimResult, *, step: float = DEFAULT_STEP, fmu=None) -> Line
     A_an, B_an = _to_analysis(model, A, B, names)
     attrs = _common_attrs(trim, step)
 
+    # Every state is an output (C = I, D = 0), so the full model is a complete model Dataset:
+    # sysid.models.frequency_response evaluates it like any identified model.
+    n = len(names)
     full = xr.Dataset(
         {"A": (("state_dot", "state"), A_an), "B": (("state_dot", "input"), B_an),
+         "C": (("output", "state"), np.eye(n)),
+         "D": (("output", "input"), np.zeros((n, len(CONTROLS)))),
          "eigenvalue": _eigen(A_an)},
-        coords={"state_dot": names, "state": names, "input": list(CONTROLS),
+        coords={"state_dot": names, "state": names, "output": names, "input": list(CONTROLS),
                 "unit": ("state", [analysis_unit(model, s) for s in names])},
         attrs={**attrs, "structure": "full"})
 
