@@ -58,8 +58,13 @@ class StudySettings:
     extra: dict = field(default_factory=dict)
 
 
+#: Version of what the stages store; bump it when a stored layout changes so that caches
+#: written by an older layout are recomputed (2: /linearization_full carries C and D).
+DATA_FORMAT = 2
+
+
 def _key(*parts) -> str:
-    text = json.dumps(parts, sort_keys=True, default=str)
+    text = json.dumps((DATA_FORMAT, *parts), sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
