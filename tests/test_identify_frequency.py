@@ -416,5 +416,5 @@ def test_fallback_coherence_admits_weak_pairs_only():
     relaxed = select_fit_data(fr, "q/lon,p/lon", fallback_coherence_min=0.4)
     assert relaxed.weak == {"p/lon": 0.4} and not relaxed.skipped
     lo, hi = relaxed.ranges["p/lon"]
-    assert 1 < lo and hi < 5                       # only the part above the fallback
+    assert lo > 1 and hi < 5          # only the part above the fallback threshold
     assert relaxed.ranges["q/lon"] == strict.ranges["q/lon"]
