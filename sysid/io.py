@@ -740,3 +740,24 @@ def read_time_history(path: str | os.PathLike, mapping: Mapping[str, str] | None
     return xr.Dataset(data_vars, coords={"time": ("time", time, {"units": "s",
                                                                   "long_name": "time"})},
                       attrs=attrs)
+
+
+def trim_from_attrs(sources) -> dict[str, float]:
+    """``channel -> trim`` (analysis units) from ``trim_<channel>`` attributes.
+
+    ``sources`` are attribute mappings (or objects with ``.attrs``) in order of preference:
+    each channel takes its value from the first source that has a numeric one. Channels are
+    the controls and the 6-DoF states (docs/data_model.md).
+    """
+    from sysid.units import CONTROLS, STATES_6DOF
+
+    mappings = [getattr(src, "attrs", src) for src in sources]
+    trim: dict[str, float] = {}
+    for channel in (*CONTROLS, *STATES_6DOF):
+        for attrs in mappings:
+            try:
+                trim[channel] = float(attrs[f"trim_{channel}"])
+                break
+            except (KeyError, TypeError, ValueError):
+                continue
+    return trim

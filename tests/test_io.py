@@ -390,3 +390,12 @@ def test_cli_failure_leaves_no_output(tmp_path, capsys):
     csv = tmp_path / "x.csv"
     assert main(["export-csv", str(out), "nope", "-o", str(csv)]) == 1
     assert "sweep_lon_1" in capsys.readouterr().err and not csv.exists()
+
+
+def test_trim_from_attrs_takes_each_channel_from_the_first_numeric_source():
+    from sysid.io import trim_from_attrs
+
+    first = {"trim_lon": 40.0, "trim_q": "n/a"}
+    second = xr.Dataset(attrs={"trim_lon": 99.0, "trim_q": 0.5, "trim_theta": 2.7})
+    assert trim_from_attrs([first, second]) == {"lon": 40.0, "q": 0.5, "theta": 2.7}
+    assert trim_from_attrs([]) == {}

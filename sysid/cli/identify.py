@@ -19,8 +19,6 @@ import argparse
 
 from sysid.errors import InputDataError
 
-_TRIM_CHANNELS = ("lon", "lat", "col", "ped", "u", "v", "w", "p", "q", "r", "phi", "theta", "psi")
-
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -57,25 +55,12 @@ def register(subparsers) -> None:
 
 def _trim(tree) -> dict[str, float]:
     """``channel -> trim`` from the frequency-response group, the root or a manoeuvre."""
-    sources = []
-    if "frequency_response" in tree:
-        sources.append(tree["frequency_response"].attrs)
-    sources.append(tree.attrs)
-    if "maneuvers" in tree:
-        for child in tree["maneuvers"].children.values():
-            sources.append(child.attrs)
-            break
-    trim: dict[str, float] = {}
-    for ch in _TRIM_CHANNELS:
-        for attrs in sources:
-            key = f"trim_{ch}"
-            if key in attrs:
-                try:
-                    trim[ch] = float(attrs[key])
-                except (TypeError, ValueError):
-                    continue
-                break
-    return trim
+    from sysid.io import trim_from_attrs
+
+    sources = [tree[g].attrs for g in ("frequency_response",) if g in tree] + [tree.attrs]
+    if "maneuvers" in tree and tree["maneuvers"].children:
+        sources.append(next(iter(tree["maneuvers"].children.values())).attrs)
+    return trim_from_attrs(sources)
 
 
 def _linearization(tree, states):

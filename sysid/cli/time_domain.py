@@ -32,8 +32,6 @@ import argparse
 
 from sysid.errors import InputDataError
 
-_TRIM_CHANNELS = ("lon", "lat", "col", "ped", "u", "v", "w", "p", "q", "r", "phi", "theta", "psi")
-
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -81,13 +79,9 @@ def register(subparsers) -> None:
 
 def _trim(records) -> dict[str, float]:
     """``channel -> trim`` from the first record that has ``trim_<channel>``."""
-    trim: dict[str, float] = {}
-    for ch in _TRIM_CHANNELS:
-        for ds in records:
-            if f"trim_{ch}" in ds.attrs:
-                trim[ch] = float(ds.attrs[f"trim_{ch}"])
-                break
-    return trim
+    from sysid.io import trim_from_attrs
+
+    return trim_from_attrs(records)
 
 
 def _has(tree, path: str) -> bool:
