@@ -35,7 +35,6 @@ import shutil
 import sys
 import tempfile
 import uuid
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
@@ -46,7 +45,7 @@ import xarray as xr
 from sysid._paths import fmu_sources_dir
 from sysid.errors import FMUError, InputDataError, SysidError
 from sysid.units import CHANNELS, DEG, FT, conversion_factor
-from sysid.util import Progress, atomic_path
+from sysid.util import Progress
 
 __all__ = ["export_fmu", "ExportSpec", "export_spec", "DEFAULT_STEP", "DEFAULT_PADE_ORDER",
            "ME_DELAY_MODES"]
@@ -766,7 +765,7 @@ def export_fmu(model_ds: xr.Dataset, path, *, fmi_version: int = 2,
             digest.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
         digest.update(spec.name.encode())
         guid = "{" + str(uuid.UUID(hex=digest.hexdigest()[:32])) + "}"
-        from sysid.fmu._build import generate_header, platform_folder
+        from sysid.fmu._build import generate_header, package_fmu
 
         (src / "model_variables.h").write_text(
             generate_header(_header_model(variables, identifier), guid))
@@ -775,13 +774,7 @@ def export_fmu(model_ds: xr.Dataset, path, *, fmi_version: int = 2,
         description = generate_model_description(spec, variables, units, guid, identifier,
                                                  step_size, source_files, me_delay)
         library = compile_library(src, identifier, work)
-        platform, ext = platform_folder()
-        with atomic_path(path) as partial:
-            with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as zf:
-                zf.writestr("modelDescription.xml", description)
-                zf.write(library, f"binaries/{platform}/{identifier}{ext}")
-                for f in sorted(src.iterdir()):
-                    zf.write(f, f"sources/{f.name}")
+        package_fmu(path, description, library, identifier, src)
     return path
 
 

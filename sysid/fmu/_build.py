@@ -469,14 +469,22 @@ def build_model_fmu(model_folder: str | os.PathLike, *, force: bool = False,
     with tempfile.TemporaryDirectory(prefix=f"sysid-build-{model.identifier}-") as tmp:
         workdir = Path(tmp)
         library, src = _compile(model, common, workdir)
-        platform, ext = platform_folder()
-        description = generate_model_description(model, guid, __version__)
-        with atomic_path(target) as partial:
-            with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as zf:
-                zf.writestr("modelDescription.xml", description)
-                zf.write(library, f"binaries/{platform}/{model.identifier}{ext}")
-                for path in sorted(src.iterdir()):
-                    zf.write(path, f"sources/{path.name}")
+        package_fmu(target, generate_model_description(model, guid, __version__), library,
+                    model.identifier, src)
+    return target
+
+
+def package_fmu(target: Path, description: str, library: Path, identifier: str,
+                sources: Path) -> Path:
+    """Write the ``.fmu`` archive atomically: ``modelDescription.xml``, the binary for this
+    platform and every file of ``sources`` (a source-code FMU other tools can rebuild)."""
+    platform, ext = platform_folder()
+    with atomic_path(target) as partial:
+        with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as zf:
+            zf.writestr("modelDescription.xml", description)
+            zf.write(library, f"binaries/{platform}/{identifier}{ext}")
+            for path in sorted(sources.iterdir()):
+                zf.write(path, f"sources/{path.name}")
     return target
 
 
