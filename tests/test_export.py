@@ -5,6 +5,7 @@ the Pade-augmented model of sysid.models.statespace (python-control's Pade), a s
 scipy discretisation, analytic envelopes, and the truth helicopter FMU.
 """
 
+import contextlib
 import shutil
 import zipfile
 import xml.etree.ElementTree as ET
@@ -379,19 +380,12 @@ def test_tuned_parameter_changes_the_model(delayed):
 
 def test_variable_steps_match_stepwise_exact_discretisation(undelayed):
     # Alternating steps 0.01 / 0.025 / 0.004 s: each step uses exp(A h) for its own h.
-    from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
-
     ds, fmu = undelayed
-    md = read_model_description(str(fmu))
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    unzip = extract(str(fmu))
-    slave = FMU2Slave(guid=md.guid, unzipDirectory=unzip,
-                      modelIdentifier=md.coSimulation.modelIdentifier, instanceName="t")
-    slave.instantiate()
-    slave.setupExperiment(startTime=0.0)
-    slave.enterInitializationMode()
-    slave.exitInitializationMode()
+    with _initialised_slave(fmu) as (slave, vr):
+        _check_variable_steps(slave, vr, ds)
+
+
+def _check_variable_steps(slave, vr, ds):
     A, B = ds.A.values, ds.B.values
     x = np.zeros(9)
     t = 0.0
@@ -408,26 +402,16 @@ def test_variable_steps_match_stepwise_exact_discretisation(undelayed):
         x = E[:9, :9] @ x + E[:9, 9:] @ du
         t += h
     q = slave.getReal([vr["q"]])[0] / DEG
-    slave.terminate()
-    slave.freeInstance()
-    shutil.rmtree(unzip, ignore_errors=True)
     assert q == pytest.approx(x[4], rel=1e-10, abs=1e-12)
 
 
 def test_fmu_state_snapshot_restores_buffers(delayed):
-    from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
+    _, fmu = delayed
+    with _initialised_slave(fmu) as (slave, vr):
+        _check_snapshot(slave, vr)
 
-    ds, fmu = delayed
-    md = read_model_description(str(fmu))
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    unzip = extract(str(fmu))
-    slave = FMU2Slave(guid=md.guid, unzipDirectory=unzip,
-                      modelIdentifier=md.coSimulation.modelIdentifier, instanceName="t")
-    slave.instantiate()
-    slave.setupExperiment(startTime=0.0)
-    slave.enterInitializationMode()
-    slave.exitInitializationMode()
+
+def _check_snapshot(slave, vr):
     lon, out = vr["lon"], [vr["p"], vr["q"]]
 
     def run(t0, n, level):
@@ -450,9 +434,28 @@ def test_fmu_state_snapshot_restores_buffers(delayed):
     assert again == first and third == first
     slave.freeFMUstate(state)
     slave.freeFMUstate(restored)
-    slave.terminate()
-    slave.freeInstance()
-    shutil.rmtree(unzip, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def _initialised_slave(fmu):
+    """An initialised co-simulation instance of ``fmu`` and its value references."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    md = read_model_description(str(fmu))
+    unzip = extract(str(fmu))
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=unzip,
+                      modelIdentifier=md.coSimulation.modelIdentifier, instanceName="t")
+    slave.instantiate()
+    try:
+        slave.setupExperiment(startTime=0.0)
+        slave.enterInitializationMode()
+        slave.exitInitializationMode()
+        yield slave, {v.name: v.valueReference for v in md.modelVariables}
+        slave.terminate()
+    finally:
+        slave.freeInstance()
+        shutil.rmtree(unzip, ignore_errors=True)
 
 
 # ------------------------------------------------------------------------------------------
