@@ -31,11 +31,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import scipy.signal
 import xarray as xr
 
 import sysid
 from sysid.errors import InputDataError, SimulationDiverged
-from sysid.units import CONTROLS, STATES_6DOF, channel_attrs, convert
+from sysid.units import CONTROLS, KT, STATES_6DOF, channel_attrs, convert
 from sysid.util import Progress, atomic_path
 
 #: Measured channels recorded for every manoeuvre (analysis units).
@@ -463,12 +464,12 @@ def fly(sim, trim, loops: dict[str, _Loop], maneuver: Maneuver, campaign: Campai
     if stab.enabled and stab.secondary_perturbation > 0:
         alpha = math.exp(-2.0 * dt)
         white = random.standard_normal((n, len(CONTROLS))) * math.sqrt(1 - alpha**2)
-        for k in range(1, n):
-            off_axis[k] = alpha * off_axis[k - 1] + white[k]
-        off_axis *= stab.secondary_perturbation
+        white[0] = 0.0  # the activity starts from trim
+        off_axis = stab.secondary_perturbation * scipy.signal.lfilter([1.0], [1.0, -alpha],
+                                                                      white, axis=0)
     gusts = None
     if campaign.turbulence > 0:
-        g = inputs.dryden_turbulence(n * dt, dt=dt, airspeed=campaign.airspeed_kt * 0.514444,
+        g = inputs.dryden_turbulence(n * dt, dt=dt, airspeed=campaign.airspeed_kt * KT,
                                      altitude=30.0, intensity=campaign.turbulence, seed=seed + 1)
         gusts = np.stack([g[c].values[:n] for c in ("u_gust", "v_gust", "w_gust")], axis=1)
         gusts = convert(gusts, "m/s", "ft/s")  # the stepping API takes gusts in ft/s
