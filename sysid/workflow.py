@@ -22,7 +22,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import xarray as xr
@@ -55,7 +55,6 @@ class StudySettings:
     verification_maneuvers: str = "2311_*"
     sweep_maneuvers: str = "sweep_*"
     campaign_file: str | None = None  #: a campaign TOML instead of the built-in one
-    extra: dict = field(default_factory=dict)
 
 
 #: Version of what the stages store; bump it when a stored layout changes so that caches
