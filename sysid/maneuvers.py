@@ -27,6 +27,7 @@ import dataclasses
 import fnmatch
 import math
 import tomllib
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -54,8 +55,23 @@ DEFAULT_NOISE = {
 
 KINDS = ("sweep", "3211", "2311", "doublet", "multisine")
 
-#: Amplitude factors of the default campaign at 80 kt and above (see default_campaign).
-FORWARD_FLIGHT_AMPLITUDE = {"lon": 0.5, "col": 0.6, "ped": 0.6}
+#: Amplitude factors of the default campaign against airspeed, ``{axis: ((kt, factor), ...)}``,
+#: interpolated linearly and held beyond the last point (see default_campaign).
+FORWARD_FLIGHT_AMPLITUDE = {"lon": ((0.0, 1.0), (80.0, 0.5), (100.0, 0.25)),
+                            "col": ((0.0, 1.0), (80.0, 0.6)),
+                            "ped": ((0.0, 1.0), (80.0, 0.6))}
+
+#: Attitude-hold crossover of the default campaign against airspeed (rad/s, same format).
+FORWARD_FLIGHT_CROSSOVER = ((0.0, 1.0), (80.0, 1.0), (100.0, 1.5))
+
+#: Closed-loop damping ratio below which :func:`run_campaign` warns before flying.
+LIGHT_DAMPING = 0.1
+
+
+def _schedule(points, airspeed_kt: float) -> float:
+    """Piecewise-linear schedule ``((kt, value), ...)`` at ``airspeed_kt`` (held at the ends)."""
+    kt, value = zip(*points)
+    return float(np.interp(airspeed_kt, kt, value))
 
 
 @dataclass
@@ -232,11 +248,11 @@ def default_campaign(airspeed_kt: float = 0.0, *, noise: bool = True, seed: int 
     # than in hover (M_w, M_col and the weathercock stiffness grow with speed). Measured at
     # 80 kt on the truth FMU with the hover amplitudes, the lon sweeps reached 35 deg of pitch
     # and 60 ft/s of speed change (diverging with the velocity hold on); with lon x0.5,
-    # col x0.6, ped x0.6 they stay near 17 deg / 22 ft/s. The factors ramp linearly from 1
-    # in hover to their full value at 80 kt and above.
-    ramp = min(max(airspeed_kt, 0.0) / 80.0, 1.0)
-    for axis, factor in FORWARD_FLIGHT_AMPLITUDE.items():
-        amplitude[axis] *= 1.0 - (1.0 - factor) * ramp
+    # col x0.6, ped x0.6 they stay near 17 deg / 22 ft/s. At 100 kt (airframe pitch-heave
+    # poles +0.37 and +0.17 /s) lon x0.5 still reached 29 deg and 61 ft/s; x0.25 keeps the
+    # lon sweeps within 15 deg / 28 ft/s. See FORWARD_FLIGHT_AMPLITUDE.
+    for axis, points in FORWARD_FLIGHT_AMPLITUDE.items():
+        amplitude[axis] *= _schedule(points, max(airspeed_kt, 0.0))
     # Amplitude schedule (fraction at 0.1 rad/s, full from rad/s): the hingeless rotor's pitch
     # and roll control power would drive attitudes far beyond +-30 deg at 0.1 rad/s.
     schedule = {"lon": (0.1, 1.5), "lat": (0.15, 1.5), "col": (0.5, 1.0), "ped": (0.2, 1.5)}
@@ -258,7 +274,13 @@ def default_campaign(airspeed_kt: float = 0.0, *, noise: bool = True, seed: int 
     # attitude hold already holds speed, and the extra loop lowers the damping of the
     # closed-loop pitch-heave mode (quasi-steady linearisation at 80 kt: from 0.18 to 0.11;
     # the lon sweeps diverged with it), so it is off above hover.
-    stabilisation = Stabilisation() if airspeed_kt == 0 else Stabilisation(velocity_hold=0.0)
+    # Above 80 kt the attitude holds cross over higher: at 100 kt, 1 rad/s leaves the
+    # lon-excited closed loop (full linearisation) with a pitch-heave mode at damping ratio
+    # 0.08 and the lon sweeps diverged near 95 s even at a fifth of their amplitude; 1.5 rad/s
+    # gives 0.14 and the campaign flies (closed_loop_modes, FORWARD_FLIGHT_CROSSOVER).
+    crossover = _schedule(FORWARD_FLIGHT_CROSSOVER, max(airspeed_kt, 0.0))
+    stabilisation = (Stabilisation() if airspeed_kt == 0
+                     else Stabilisation(velocity_hold=0.0, crossover=crossover))
     return Campaign(name=name, airspeed_kt=airspeed_kt, seed=seed, maneuvers=maneuvers,
                     noise=dict(DEFAULT_NOISE) if noise else {},
                     turbulence=0.3 if noise else 0.0, stabilisation=stabilisation)
@@ -333,6 +355,91 @@ def design_loops(linearization: xr.Dataset, stab: Stabilisation) -> dict[str, _L
     return loops
 
 
+def hold_gains(loops: dict[str, _Loop], stab: Stabilisation, trim_y: dict,
+               excited_axis: str | None = None) -> xr.DataArray:
+    """The hold law linearised about trim: ``delta = K x`` (%, per analysis unit of state).
+
+    Central differences of the very law flown (:func:`_hold_commands`, dead bands off), so the
+    analysis cannot drift from the implementation. ``excited_axis`` gets the weaker hold
+    (``primary_fraction``). Returns K with dims ``(input, state)`` over CONTROLS and the
+    rigid-body states.
+    """
+    linear = dataclasses.replace(stab, conditional=False)
+    fractions = {c: (stab.primary_fraction if c == excited_axis else 1.0) for c in CONTROLS}
+    names = list(MEASUREMENTS)
+    col = {c: k for k, c in enumerate(names)}
+    y0 = np.array([trim_y[c] for c in names], dtype=float)
+    K = np.empty((len(CONTROLS), len(STATES_6DOF)))
+    for j, state in enumerate(STATES_6DOF):
+        h = 1e-3  # analysis units (ft/s, deg/s, deg); the law is smooth (sin/cos in hdot)
+        up, down = y0.copy(), y0.copy()
+        up[col[state]] += h
+        down[col[state]] -= h
+        K[:, j] = (_hold_commands(up, col, trim_y, loops, fractions, linear)
+                   - _hold_commands(down, col, trim_y, loops, fractions, linear)) / (2 * h)
+    return xr.DataArray(K, dims=("input", "state"),
+                        coords={"input": list(CONTROLS), "state": list(STATES_6DOF)})
+
+
+def closed_loop_modes(model: xr.Dataset, loops: dict[str, _Loop], stab: Stabilisation,
+                      trim_y: dict, slowest: float = 5.0) -> xr.Dataset:
+    """Closed-loop modes of a linear model with the holds, one configuration per excited axis.
+
+    ``model`` has A (state_dot, state) and B (state_dot, input) in analysis units and contains
+    the rigid-body states (the quasi-steady model, or the full one with rotor, inflow and
+    actuator states, which is what the holds really see). Returns, per ``excited`` axis,
+    ``max_real`` (1/s, > 0 is unstable) and ``min_damping`` (smallest damping ratio of the
+    oscillatory modes slower than ``slowest`` rad/s, the ones sweeps excite).
+    """
+    A = model["A"].transpose("state_dot", "state").values
+    B = model["B"].sel(input=list(CONTROLS)).transpose("state_dot", "input").values
+    states = list(model["state"].values)
+    missing = [s for s in STATES_6DOF if s not in states]
+    if missing:
+        raise InputDataError(f"closed-loop check: the model lacks states {missing}")
+    columns = [states.index(s) for s in STATES_6DOF]
+    max_real, min_damping = [], []
+    for axis in CONTROLS:
+        K = np.zeros((len(CONTROLS), len(states)))
+        K[:, columns] = hold_gains(loops, stab, trim_y, axis).values
+        eig = np.linalg.eigvals(A + B @ K)
+        max_real.append(float(eig.real.max()))
+        oscillatory = eig[(np.abs(eig.imag) > 1e-6) & (np.abs(eig) < slowest)]
+        min_damping.append(float(np.min(-oscillatory.real / np.abs(oscillatory)))
+                           if oscillatory.size else 1.0)
+    return xr.Dataset({"max_real": ("excited", max_real, {"units": "1/s"}),
+                       "min_damping": ("excited", min_damping, {"units": "1"})},
+                      coords={"excited": list(CONTROLS)})
+
+
+def preflight_check(model: xr.Dataset, loops: dict[str, _Loop], campaign: Campaign,
+                    trim_y: dict) -> xr.Dataset | None:
+    """Refuse to fly holds that leave the linearised closed loop unstable; warn if lightly
+    damped (a sweep through such a mode grows until the nonlinear aircraft departs)."""
+    stab = campaign.stabilisation
+    if not stab.enabled:
+        return None
+    modes = closed_loop_modes(model, loops, stab, trim_y)
+    excited = {m.axis for m in campaign.maneuvers}
+    for axis in CONTROLS:
+        if axis not in excited:
+            continue
+        mode = modes.sel(excited=axis)
+        if float(mode.max_real) > 0:
+            raise InputDataError(
+                f"campaign {campaign.name!r} at {campaign.flight_condition}: with {axis} "
+                f"excited the holds leave the linearised closed loop unstable (eigenvalue real "
+                f"part {float(mode.max_real):+.3f} /s); change the [stabilisation] crossover "
+                "or vertical_speed_bandwidth")
+        if float(mode.min_damping) < LIGHT_DAMPING:
+            warnings.warn(
+                f"campaign {campaign.name!r} at {campaign.flight_condition}: with {axis} "
+                f"excited the closed loop has a mode at damping ratio "
+                f"{float(mode.min_damping):.2f} (< {LIGHT_DAMPING}); sweeps through it may "
+                "diverge: consider a higher [stabilisation] crossover", stacklevel=3)
+    return modes
+
+
 def _dead_band(value: float, width: float) -> float:
     return math.copysign(max(abs(value) - width, 0.0), value)
 
@@ -359,10 +466,13 @@ def run_campaign(campaign: Campaign, output: str | Path | None = None, *, quiet:
         trim = truth.trim(campaign.airspeed_kt, fmu=model)
         linearization = truth.linearize(trim, fmu=model)
     loops = design_loops(linearization.quasi_steady, campaign.stabilisation)
+    modes = preflight_check(linearization.full, loops, campaign, trim.channel_values())
     tree = xr.DataTree(xr.Dataset(attrs=_campaign_attrs(campaign)))
     tree["trim"] = xr.DataTree(trim.to_dataset())
     tree["linearization"] = xr.DataTree(linearization.quasi_steady)
     tree["linearization_full"] = xr.DataTree(linearization.full)
+    if modes is not None:
+        tree["closed_loop"] = xr.DataTree(modes)
     if output is not None:
         output = Path(output)
         if output.exists():

@@ -1,12 +1,15 @@
 """Campaign description, TOML round trip and hold-loop design (no FMU needed)."""
 
+import dataclasses
+
 import control
 import numpy as np
 import pytest
 import xarray as xr
 
 from sysid.errors import InputDataError
-from sysid.maneuvers import Campaign, Maneuver, Stabilisation, default_campaign, design_loops
+from sysid.maneuvers import (Campaign, Maneuver, Stabilisation, closed_loop_modes,
+                             default_campaign, design_loops, preflight_check)
 from sysid.units import CONTROLS, STATES_6DOF
 
 
@@ -88,3 +91,67 @@ def test_hold_loops_cross_over_where_asked(crossover):
         outer = inner * (loop.k_error / derivative)
         assert abs(control.evalfr(outer, 1j * wanted)) == pytest.approx(1.0, rel=1e-9)
         assert np.all(np.real(control.poles(control.feedback(outer))) < 0)
+
+
+def _with_kinematics(lin):
+    """Add phi' = p, theta' = q, psi' = r (deg and deg/s: unit coefficients) at level trim."""
+    A = lin.A.copy()
+    for angle, rate in (("phi", "p"), ("theta", "q"), ("psi", "r")):
+        A.loc[{"state_dot": angle, "state": rate}] = 1.0
+    return lin.assign(A=A)
+
+
+def _level_hover_trim():
+    return {c: 0.0 for c in ("u", "v", "w", "p", "q", "r", "phi", "theta", "psi",
+                             "ax", "ay", "az")}
+
+
+def test_closed_loop_modes_match_the_analytic_loops():
+    """Decoupled axes: each attitude loop closes to s^2 + (k_r s - D) s + k_x = 0 (weaker on
+    the excited axis) and the vertical-speed loop to s = Z_w - k; u, v stay neutral."""
+    lin = _with_kinematics(_hover_like_linearization())
+    stab = Stabilisation(crossover=0.8, heading_crossover=0.3, vertical_speed_bandwidth=0.4,
+                         primary_fraction=0.6, velocity_hold=0.0)
+    loops = design_loops(lin, stab)
+    modes = closed_loop_modes(lin, loops, stab, _level_hover_trim())
+    for excited in CONTROLS:
+        roots = [0.0, 0.0, -0.32 - 0.4 * (0.6 if excited == "col" else 1.0)]
+        for control_name, rate in (("lat", "p"), ("lon", "q"), ("ped", "r")):
+            loop = loops[control_name]
+            scale = 0.6 if control_name == excited else 1.0
+            damping = float(lin.A.sel(state_dot=rate, state=rate))
+            roots += list(np.roots([1.0, scale * loop.k_rate - damping,
+                                    scale**2 * loop.k_error]))
+        roots = np.array(roots, dtype=complex)
+        oscillatory = roots[np.abs(roots.imag) > 1e-6]
+        mode = modes.sel(excited=excited)
+        assert float(mode.max_real) == pytest.approx(roots.real.max(), abs=1e-6)
+        assert float(mode.min_damping) == pytest.approx(
+            np.min(-oscillatory.real / np.abs(oscillatory)), rel=1e-6)
+
+
+def test_preflight_check_refuses_unstable_holds_and_warns_on_light_damping():
+    """The design compensates the bare-airframe rate damping D, but the weaker hold on the
+    excited axis (scale f) leaves s^2 + (f k_r - D) s + f^2 k_x: unstable when f k_r < D."""
+    lin = _with_kinematics(_hover_like_linearization())
+    unstable = lin.copy(deep=True)
+    unstable.A.loc[{"state_dot": "q", "state": "q"}] = 3.0  # k_r = 3.42; 0.8 k_r < 3
+    stab = Stabilisation(crossover=0.3, velocity_hold=0.0, primary_fraction=0.8)
+    campaign = Campaign(name="c", maneuvers=[Maneuver("sweep_lon_1", "sweep", "lon", 5.0)],
+                        stabilisation=stab)
+    loops = design_loops(unstable, stab)
+    with pytest.raises(InputDataError, match="lon excited.*unstable"):
+        preflight_check(unstable, loops, campaign, _level_hover_trim())
+    # Lightly damped: 0.45 k_r - D = 0.024 with D = 0.3, k_r = 0.72. Warned, not refused.
+    light = lin.copy(deep=True)
+    light.A.loc[{"state_dot": "p", "state": "p"}] = 0.3
+    stab = Stabilisation(crossover=0.3, velocity_hold=0.0, primary_fraction=0.45)
+    campaign = Campaign(name="c", maneuvers=[Maneuver("sweep_lat_1", "sweep", "lat", 5.0)],
+                        stabilisation=stab)
+    loops = design_loops(light, stab)
+    with pytest.warns(UserWarning, match="damping ratio"):
+        modes = preflight_check(light, loops, campaign, _level_hover_trim())
+    assert 0 < float(modes.min_damping.sel(excited="lat")) < 0.1
+    # Stabilisation off: nothing to check.
+    off = dataclasses.replace(campaign, stabilisation=Stabilisation(enabled=False))
+    assert preflight_check(unstable, loops, off, _level_hover_trim()) is None
