@@ -119,14 +119,35 @@ def test_hover_stability_derivative_signs(hover_lin, name):
         np.sign(PADFIELD_STABILITY[name])
 
 
-def test_yaw_rate_roll_coupling_documented_exception(hover_lin):
+@pytest.fixture(scope="module")
+def helisim_lin(truth_fmu):
+    """Hover linearisation with Helisim's convention: no r sin(i) in the flapping drive."""
+    from sysid import fmu as truth
+
+    parameters = {"yaw_rate_flapping": 0.0}
+    return truth.linearize(truth.trim(0.0, fmu=truth_fmu, parameters=parameters),
+                           fmu=truth_fmu)
+
+
+def test_yaw_rate_roll_coupling_documented_exception(hover_lin, helisim_lin):
     """L_r is the one sign that differs from Padfield's set: the 3 deg forward shaft tilt
     turns a yaw rate into a roll rate about the shaft (r sin i_s), which the rotor's roll
     damping opposes (L_p sin i_s ~ -0.6 1/s) more strongly than the high tail rotor pushes
-    the other way. It stays small against the roll damping."""
-    value = float(hover_lin.derivatives().sel(parameter="L_r"))
-    L_p = float(hover_lin.derivatives().sel(parameter="L_p"))
-    assert abs(value) < 0.1 * abs(L_p)
+    the other way. Without that term (Helisim's convention) L_r takes Padfield's sign, and
+    the difference is the rotor's roll damping seen through the tilt."""
+    import math
+
+    L_r, L_p = (float(hover_lin.derivatives().sel(parameter=n)) for n in ("L_r", "L_p"))
+    L_r_helisim = float(helisim_lin.derivatives().sel(parameter="L_r"))
+    assert L_r < 0 < L_r_helisim
+    assert abs(L_r) < 0.1 * abs(L_p)
+    assert L_r - L_r_helisim == pytest.approx(L_p * math.sin(math.radians(3.0)), rel=0.3)
+
+
+@pytest.mark.parametrize("name", sorted(PADFIELD_STABILITY))
+def test_helisim_convention_has_every_padfield_sign(helisim_lin, name):
+    assert np.sign(float(helisim_lin.derivatives().sel(parameter=name))) == \
+        np.sign(PADFIELD_STABILITY[name])
 
 
 @pytest.mark.parametrize("letter", ["X", "Y", "Z", "L", "M", "N"])

@@ -179,10 +179,12 @@ def test_multistep_rejects_widths_off_the_grid():
 # multisines
 
 
-def test_multisines_orthogonal_flat_and_low_peak_factor():
+@pytest.mark.parametrize("deal", ["round-robin", "dyadic"])
+def test_multisines_orthogonal_flat_and_low_peak_factor(deal):
     wmin, wmax, T, amp, dt = 0.3, 20.0, 90.0, 10.0, 0.01
     ds = inputs.orthogonal_multisines(AXES, omega_min=wmin, omega_max=wmax, duration=T,
-                                      amplitude=amp, dt=dt)
+                                      amplitude=amp, dt=dt, deal=deal)
+    assert ds.attrs["deal"] == deal
     x = np.stack([ds[a].values for a in AXES])
     n = x.shape[1]
     assert n == round(T / dt)
@@ -210,16 +212,45 @@ def test_multisines_orthogonal_flat_and_low_peak_factor():
     pf_sweep = inputs.peak_factor(sweep["lon"])
     schroeder = inputs.orthogonal_multisines(AXES, omega_min=wmin, omega_max=wmax,
                                              duration=T, amplitude=amp, dt=dt,
-                                             optimise=False)
+                                             optimise=False, deal=deal)
     pf_schroeder = np.array([schroeder.attrs[f"peak_factor_{a}"] for a in AXES])
-    print(f"peak factors: multisine {np.round(pf, 4)}, Schroeder only "
+    print(f"peak factors ({deal}): multisine {np.round(pf, 4)}, Schroeder only "
           f"{np.round(pf_schroeder, 4)}, sweep {pf_sweep:.4f}")
     # optimisation lowers every axis's peak factor below the Schroeder start
     assert np.all(pf < pf_schroeder)
-    # four simultaneous inputs with a peak factor on average below that of one sweep of the
-    # same band, amplitude and record length, no axis more than 3 % above it
-    assert pf.mean() < pf_sweep
-    assert pf.max() < 1.03 * pf_sweep
+    if deal == "dyadic":
+        # every one of the four simultaneous inputs has a lower peak factor than one sweep
+        # of the same band, amplitude and record length
+        assert np.all(pf < pf_sweep)
+    else:
+        # the two axes holding odd harmonics (k = 1, 3 mod 4) stay near 1.05 (see the
+        # docstring): on average below the sweep, no axis more than 3 % above it
+        assert pf.mean() < pf_sweep
+        assert pf.max() < 1.03 * pf_sweep
+
+
+def test_multisines_dyadic_deal_halves_the_lines_axis_by_axis():
+    ds = inputs.orthogonal_multisines(AXES, omega_min=0.3, omega_max=20.0, duration=90.0,
+                                      dt=0.01, optimise=False, deal="dyadic")
+    k = {a: ds.attrs[f"harmonics_{a}"] for a in AXES}
+    assert np.all(k["lon"] % 2 == 1) and np.all(k["lat"] % 4 == 2)
+    assert np.all(k["col"] % 8 == 4) and np.all(k["ped"] % 8 == 0)
+    assert [v.size for v in k.values()] == [141, 71, 35, 35]
+    assert np.array_equal(np.sort(np.concatenate(list(k.values()))), np.arange(5, 287))
+    # one or two axes: the same lines as round-robin when the band starts at an odd harmonic
+    kw = dict(omega_min=0.3, omega_max=20.0, duration=90.0, dt=0.01, optimise=False)
+    for axes in (["lon"], ["lon", "lat"]):
+        a = inputs.orthogonal_multisines(axes, deal="dyadic", **kw)
+        b = inputs.orthogonal_multisines(axes, **kw)
+        for ax in axes:
+            assert np.array_equal(a.attrs[f"harmonics_{ax}"], b.attrs[f"harmonics_{ax}"])
+    with pytest.raises(InputDataError, match="deal"):
+        inputs.orthogonal_multisines(AXES, deal="snake", **kw)
+    # 11 lines (k = 2..12) are enough for 4 axes round-robin, not dyadic (ped gets k = 8 only)
+    short = dict(omega_min=1.0, omega_max=8.0, duration=10.0, optimise=False)
+    inputs.orthogonal_multisines(AXES, **short)
+    with pytest.raises(InputDataError, match="harmonics"):
+        inputs.orthogonal_multisines(AXES, deal="dyadic", **short)
 
 
 def test_multisines_seeded_restarts_are_reproducible():

@@ -167,8 +167,14 @@ static void evaluate(const ModelInstance *comp, const double *x, double *dx, Out
         const double uh = ua - q * P(h_hub);
         const double vh = va + rr * P(x_hub) + p * P(h_hub);
         const double wh = wa - q * P(x_hub);
-        /* shaft axes: body axes pitched nose-down by the shaft tilt (Eq. R1) */
-        const double ps = p * ci + rr * si;
+        /* shaft axes: body axes pitched nose-down by the shaft tilt (Eq. R1). The roll rate
+         * driving the flapping is p cos(i) plus the yaw-rate component r sin(i) of exact
+         * kinematics, weighted by yaw_rate_flapping (default 1). With 0 it is left out, the
+         * convention of Helisim (Padfield's Bo-105 hover derivatives: L_r is the tail-rotor
+         * term alone, about +0.13) and of Heffley & Mnich (body p, q drive the flapping); with
+         * 1 the rotor's roll damping turns a yaw rate into a rolling moment,
+         * L_r ~ L_p sin(i) ~ -0.6 1/s (README: yaw_rate_flapping). */
+        const double ps = p * ci + P(yaw_rate_flapping) * rr * si;
         double mux, muy, mu2, mu, cx, sx, lam, th0, th1s, th1c, b1c, b1s, pb, qb;
         double b1cw, b1sw, t1cw, t1sw, pw, qw, l1c, R0, Rc, Rs, D1s, D1c, B0, CT, delta;
         double nx, ny, nz, inv_n, Fsx, Fsy, Fsz, Fx, Fy, Fz, Ls, Ms, H, CQ, Vm;
