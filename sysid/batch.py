@@ -546,21 +546,30 @@ def plot_derivatives(ds: xr.Dataset, path: str | Path) -> Path | None:
     span = max(float(np.ptp(speeds)) if speeds.size else 0.0, 40.0)
     styles = {"frequency_domain": ("C0", "o", -0.012), "time_domain": ("C3", "s", 0.012)}
     for ax, name in zip(axes.flat, params):
+        limit = _plot_limit(ok["value"].sel(parameter=name).values,
+                            ok["truth"].sel(parameter=name).values)
+        off_scale = 0
         for method in ok.model.values:
             color, marker, shift = styles.get(str(method), ("C2", "^", 0.0))
             v = ok["value"].sel(model=method, parameter=name).values
             e = ok["cramer_rao"].sel(model=method, parameter=name).values
-            good = np.isfinite(v)
+            good = np.isfinite(v) & (np.abs(v) <= limit)
             ax.errorbar(speeds[good] + shift * span, v[good],
                         yerr=np.where(np.isfinite(e[good]), e[good], 0.0), fmt=marker,
                         color=color, ms=3.5, capsize=2, lw=0.9,
                         label="FD" if method == "frequency_domain" else
                         "TD" if method == "time_domain" else str(method))
+            # Diverged estimates (e.g. 1e9) would flatten the panel: drawn as open
+            # triangles on its edge and counted in the title instead.
+            far = np.isfinite(v) & (np.abs(v) > limit)
+            off_scale += int(far.sum())
+            ax.plot(speeds[far] + shift * span, np.sign(v[far]) * limit,
+                    "^" if np.all(v[far] > 0) else "v", mfc="none", color=color, ms=5)
         truth = ok["truth"].sel(parameter=name)
         t = truth.groupby(ok.airspeed_kt).mean() if truth.notnull().any() else None
         if t is not None:
             ax.plot(t.airspeed_kt.values, t.values, "k-", marker="_", ms=14, lw=1.2, label="truth")
-        ax.set_title(name, fontsize=9)
+        ax.set_title(name + (f" ({off_scale} off scale)" if off_scale else ""), fontsize=9)
         ax.tick_params(labelsize=7)
         ax.axhline(0.0, color="0.8", lw=0.6, zorder=0)
     for ax in list(axes.flat)[len(params):]:
@@ -580,6 +589,20 @@ def plot_derivatives(ds: xr.Dataset, path: str | Path) -> Path | None:
         fig.savefig(tmp, dpi=90)
     plt.close(fig)
     return path
+
+
+#: Estimates beyond this many times the panel's scale (see _plot_limit) are drawn off scale.
+OFF_SCALE_FACTOR = 5.0
+
+
+def _plot_limit(values: np.ndarray, truth: np.ndarray) -> float:
+    """Largest |value| a derivative panel shows: OFF_SCALE_FACTOR times the larger of the
+    truth's largest magnitude and the estimates' median magnitude (robust to a few diverged
+    fits); infinite when there is nothing to scale by."""
+    scales = [np.nanmax(np.abs(truth)) if np.isfinite(truth).any() else 0.0,
+              np.nanmedian(np.abs(values)) if np.isfinite(values).any() else 0.0]
+    scale = max(scales)
+    return OFF_SCALE_FACTOR * scale if scale > 0 else np.inf
 
 
 def monte_carlo(ds: xr.Dataset) -> xr.Dataset | None:

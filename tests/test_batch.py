@@ -122,3 +122,24 @@ def test_batch_on_local_cluster_survives_a_failing_condition(tmp_path, truth_fmu
                       inject_failure={diverging.name: "SimulationDiverged"})
     assert again.wall_time_s < result.wall_time_s / 2
     assert list(again.dataset.status.values) == list(ds.status.values)
+
+
+def test_diverged_estimates_are_drawn_off_scale(tmp_path):
+    """A fit that ran off to 1e9 must not flatten its panel: the limit follows the truth and
+    the median estimate, and the plot still renders."""
+    from sysid.batch import OFF_SCALE_FACTOR, _plot_limit, plot_derivatives
+
+    values = np.array([[-11.0, -2.8e9, -12.5], [-10.0, -9.0, np.nan]])
+    truth = np.array([-11.6, -11.2, -10.9])
+    assert _plot_limit(values, truth) == pytest.approx(OFF_SCALE_FACTOR * 11.6)
+    assert _plot_limit(np.array([np.nan]), np.array([np.nan])) == np.inf
+    names = ["0kt", "20kt", "40kt"]
+    ds = xr.Dataset(
+        {"value": (("condition", "model", "parameter"), values.T[:, :, None]),
+         "cramer_rao": (("condition", "model", "parameter"), np.full((3, 2, 1), 0.5)),
+         "truth": (("condition", "parameter"), truth[:, None])},
+        coords={"condition": names, "model": ["frequency_domain", "time_domain"],
+                "parameter": ["L_p"], "airspeed_kt": ("condition", [0.0, 20.0, 40.0]),
+                "status": ("condition", ["ok"] * 3)})
+    path = plot_derivatives(ds, tmp_path / "d.png")
+    assert path.stat().st_size > 5_000
