@@ -551,6 +551,8 @@ def generate_model_description(spec: ExportSpec, variables: list[FmuVariable], u
     ``fmi2CompletedIntegratorStep``: it raises a step event where an input update makes a
     delayed input jump, so that the integrator restarts there.
     """
+    from sysid.fmu._build import model_structure
+
     from sysid import __version__
 
     files = "\n".join(f'      <File name="{f}"/>' for f in source_files)
@@ -614,15 +616,9 @@ def generate_model_description(spec: ExportSpec, variables: list[FmuVariable], u
         out.append(f"      <Real{real}/>")
         out.append("    </ScalarVariable>")
     out.append("  </ModelVariables>")
-    out.append("  <ModelStructure>")
     outputs = [index[v.name] for v in variables if v.kind == "output"]
     derivs = [index[v.name] for v in variables if v.kind == "derivative"]
-    for tag, items in (("Outputs", outputs), ("Derivatives", derivs),
-                       ("InitialUnknowns", sorted(outputs + derivs))):
-        out.append(f"    <{tag}>")
-        out += [f'      <Unknown index="{i}"/>' for i in items]
-        out.append(f"    </{tag}>")
-    out.append("  </ModelStructure>")
+    out += model_structure(outputs, derivs, sorted(outputs + derivs))
     out.append("</fmiModelDescription>")
     return "\n".join(out) + "\n"
 

@@ -323,15 +323,22 @@ def generate_model_description(model: ModelSources, guid: str, version: str) -> 
     derivatives = [index[v.name] for v in model.variables if v.kind == "derivative"]
     initial = sorted(index[v.name] for v in model.variables
                      if v.kind in ("output", "derivative"))
-    out.append("  <ModelStructure>")
+    out += model_structure(outputs, derivatives, initial)
+    out.append("</fmiModelDescription>")
+    return "\n".join(out) + "\n"
+
+
+def model_structure(outputs, derivatives, initial_unknowns) -> list[str]:
+    """The ``<ModelStructure>`` lines of an FMI 2.0 modelDescription.xml (indices are the
+    1-based positions of the variables in ``<ModelVariables>``)."""
+    out = ["  <ModelStructure>"]
     for tag, items in (("Outputs", outputs), ("Derivatives", derivatives),
-                       ("InitialUnknowns", initial)):
+                       ("InitialUnknowns", initial_unknowns)):
         out.append(f"    <{tag}>")
         out += [f'      <Unknown index="{i}"/>' for i in items]
         out.append(f"    </{tag}>")
     out.append("  </ModelStructure>")
-    out.append("</fmiModelDescription>")
-    return "\n".join(out) + "\n"
+    return out
 
 
 # ------------------------------------------------------------------------------------------
