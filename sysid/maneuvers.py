@@ -425,7 +425,8 @@ def preflight_check(model: xr.Dataset, loops: dict[str, _Loop], campaign: Campai
         if axis not in excited:
             continue
         mode = modes.sel(excited=axis)
-        if float(mode.max_real) > 0:
+        # a neutral mode (eigenvalue 0 to round-off, e.g. an unheld velocity) is not unstable
+        if float(mode.max_real) > 1e-6:
             raise InputDataError(
                 f"campaign {campaign.name!r} at {campaign.flight_condition}: with {axis} "
                 f"excited the holds leave the linearised closed loop unstable (eigenvalue real "
