@@ -33,7 +33,7 @@ coherences) are used downstream.
 record time over window length), the count used by the random-error formula Eq. 9 together with
 the error constant ``C_eps``, which absorbs the benefit of overlapping (see
 :func:`hann_error_constant`). ``n_segments`` is the number of overlapping segments actually
-averaged.
+averaged; they cover every record from its first to its last sample (:func:`segment_layout`).
 """
 
 from __future__ import annotations
@@ -240,13 +240,21 @@ DEFAULT_C_EPS = 0.7
 
 
 def segment_layout(n_samples: int, window: float, dt: float,
-                   overlap: float) -> tuple[int, int, int]:
-    """``(N, step, n_segments)`` for one record: samples per segment, samples between segment
-    starts, and how many whole segments fit in ``n_samples``."""
+                   overlap: float) -> tuple[int, np.ndarray]:
+    """``(N, starts)`` for one record: samples per segment and the first sample of each.
+
+    The nominal step is ``round(N (1 - overlap))`` samples. When the record is not a whole
+    number of steps longer than a segment, the starts are spread evenly from the first to
+    the last possible sample (so the actual overlap is slightly above the nominal) rather
+    than dropping the record's tail: a sweep spends its last seconds at its highest
+    frequencies, which a dropped tail would remove from the longest windows altogether.
+    """
     n_win = int(round(window / dt))
+    if n_samples < n_win:
+        return n_win, np.zeros(0, dtype=int)
     step = max(1, int(round(n_win * (1.0 - overlap))))
-    n_seg = 0 if n_samples < n_win else (n_samples - n_win) // step + 1
-    return n_win, step, n_seg
+    n_seg = -(-(n_samples - n_win) // step) + 1
+    return n_win, np.round(np.linspace(0, n_samples - n_win, n_seg)).astype(int)
 
 
 def check_window(signals: Sequence[xr.DataArray], window: float, overlap: float) -> float:
@@ -292,10 +300,11 @@ def _dft_kernel(n_win: int, dt: float, omega: np.ndarray) -> np.ndarray:
                           axis=1)
 
 
-def _segment_transforms(x: np.ndarray, n_win: int, step: int, kernel: np.ndarray) -> np.ndarray:
-    """Fourier coefficients ``(channel, segment, frequency)`` of all segments of ``x``
-    ``(channel, time)``."""
-    segs = np.lib.stride_tricks.sliding_window_view(x, n_win, axis=-1)[:, ::step, :]
+def _segment_transforms(x: np.ndarray, n_win: int, starts: np.ndarray,
+                        kernel: np.ndarray) -> np.ndarray:
+    """Fourier coefficients ``(channel, segment, frequency)`` of the segments of ``x``
+    ``(channel, time)`` that begin at samples ``starts``."""
+    segs = np.lib.stride_tricks.sliding_window_view(x, n_win, axis=-1)[:, starts, :]
     n_ch, n_seg, _ = segs.shape
     prod = segs.reshape(n_ch * n_seg, n_win) @ kernel
     n_f = kernel.shape[1] // 2
@@ -343,14 +352,14 @@ def window_spectra(signals: Sequence[xr.DataArray], inputs: Sequence[str],
     n_seg_total = 0
     for sig in signals:
         x = sig.sel(channel=inputs + outputs).values
-        _, step, n_seg = segment_layout(x.shape[1], window, dt, overlap)
+        _, starts = segment_layout(x.shape[1], window, dt, overlap)
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported below
-            coef = _segment_transforms(x, n_win, step, kernel).transpose(2, 0, 1)
+            coef = _segment_transforms(x, n_win, starts, kernel).transpose(2, 0, 1)
             cx, cy = coef[:, :n_in], coef[:, n_in:]               # (F, ch, seg)
             sxx += np.conj(cx) @ cx.transpose(0, 2, 1)           # sum_k conj(X_i) X_j
             sxy += cy @ np.conj(cx).transpose(0, 2, 1)           # sum_k conj(X_i) Y_o
             syy += np.sum(cy.real ** 2 + cy.imag ** 2, axis=-1)  # sum_k |Y_o|^2
-        n_seg_total += n_seg
+        n_seg_total += starts.size
     finite = np.concatenate([np.isfinite(np.diagonal(sxx, axis1=1, axis2=2)).all(axis=0),
                              np.isfinite(syy).all(axis=0)])
     if not finite.all() or not np.isfinite(sxx).all() or not np.isfinite(sxy).all():

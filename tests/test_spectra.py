@@ -58,7 +58,7 @@ def test_exact_dft_between_bins():
     x = rng.normal(size=(2, 1000))
     omega = np.array([0.37, 1.234, 9.87, 50.0])
     kernel = spectra._dft_kernel(n, dt, omega)
-    coef = spectra._segment_transforms(x, n, 30, kernel)
+    coef = spectra._segment_transforms(x, n, np.arange(0, 1000 - n + 1, 30), kernel)
     t = np.arange(n) * dt
     w = 0.5 * (1 - np.cos(2 * np.pi * np.arange(n) / n))
     for s in (0, 7):
@@ -187,3 +187,20 @@ def test_frequency_above_nyquist():
     sig = spectra.perturbations({"r": good()}, ["x", "y"], ["x"])
     with pytest.raises(InputDataError, match="Nyquist"):
         spectra.window_spectra(sig, ["x"], ["y"], 2.0, [1.0, 400.0])
+
+
+def test_segments_cover_every_record_to_its_last_sample():
+    """A record that is not a whole number of steps longer than a window keeps its tail:
+    segments spread evenly with at least the nominal overlap. A burst confined to the last
+    0.3 s (where a sweep has its highest frequencies) must reach the spectrum."""
+    dt, n, window = 0.01, 1037, 2.0
+    n_win, starts = spectra.segment_layout(n, window, dt, 0.8)
+    assert n_win == 200 and starts[0] == 0 and starts[-1] == n - n_win
+    assert np.all(np.diff(starts) <= 40) and starts.size == 22   # ceil(837 / 40) + 1
+    x = np.zeros(n)
+    x[-30:] = np.sin(2 * np.pi * np.arange(30) / 10)
+    recs = [record({"x": x, "y": np.random.default_rng(0).normal(size=n)}, dt)]
+    sig = spectra.perturbations(recs, ["x", "y"], ["x"])
+    ds = spectra.window_spectra(sig, ["x"], ["y"], window, [2 * np.pi * 10.0])
+    assert int(ds["n_segments"]) == 22
+    assert float(ds["Gxx"].sel(input="x", input_j="x").real.item()) > 1e-6
