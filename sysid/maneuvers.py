@@ -254,8 +254,12 @@ def default_campaign(airspeed_kt: float = 0.0, *, noise: bool = True, seed: int 
     for axis, points in FORWARD_FLIGHT_AMPLITUDE.items():
         amplitude[axis] *= _schedule(points, max(airspeed_kt, 0.0))
     # Amplitude schedule (fraction at 0.1 rad/s, full from rad/s): the hingeless rotor's pitch
-    # and roll control power would drive attitudes far beyond +-30 deg at 0.1 rad/s.
-    schedule = {"lon": (0.1, 1.5), "lat": (0.15, 1.5), "col": (0.5, 1.0), "ped": (0.2, 1.5)}
+    # and roll control power would drive attitudes far beyond +-30 deg at 0.1 rad/s. It also
+    # flattens the input autospectrum per rad/s, which a constant-amplitude sweep cannot keep
+    # within 10 dB of its median (the long-period dwell and the slow start of the exponential
+    # put +18 dB at the bottom): every sweep here stays within -10/+9 dB over 0.1-20 rad/s
+    # (collective at 0.5 reached +11.6 dB at 0.1 rad/s; tests/test_inputs.py).
+    schedule = {"lon": (0.1, 1.5), "lat": (0.15, 1.5), "col": (0.3, 1.5), "ped": (0.2, 1.5)}
     base_width = {"lon": 0.5, "lat": 0.4, "col": 0.8, "ped": 0.8}
     maneuvers = []
     for axis in CONTROLS:
