@@ -130,12 +130,18 @@ def input_coherence(Gxx: xr.DataArray) -> xr.DataArray:
         long_name="multiple coherence of the input on the other inputs", units="1")
 
 
-def collinear(Gxx: xr.DataArray, threshold: float = DEFAULT_COLLINEAR_THRESHOLD) -> xr.DataArray:
+def collinear(Gxx: xr.DataArray, threshold: float = DEFAULT_COLLINEAR_THRESHOLD,
+              inputs=None) -> xr.DataArray:
     """True at frequencies where some input's multiple coherence on the others exceeds
-    ``threshold`` (or the input matrix is singular or not finite)."""
+    ``threshold`` (or the input matrix is singular or not finite). ``inputs`` restricts the
+    test to those inputs (the others still count among "the others"): auxiliary regressors
+    such as transient terms may be nearly dependent among themselves without harm to the
+    responses of the inputs that are reported."""
     if not 0.0 < threshold <= 1.0:
         raise InputDataError(f"collinear_threshold must be in (0, 1], got {threshold}")
     coh = input_coherence(Gxx)
+    if inputs is not None:
+        coh = coh.sel(input=list(inputs))
     flag = (coh > threshold).any("input") | (coh >= 1.0).any("input")
     return flag.assign_attrs(long_name="inputs nearly collinear: conditioned results undefined",
                              collinear_threshold=threshold)
@@ -296,7 +302,7 @@ def siso_response(spectra: xr.Dataset, *, C_eps: float = DEFAULT_C_EPS) -> xr.Da
 
 def conditioned_response(spectra: xr.Dataset, *, C_eps: float = DEFAULT_C_EPS,
                          collinear_threshold: float = DEFAULT_COLLINEAR_THRESHOLD,
-                         method: str = "matrix") -> xr.Dataset:
+                         method: str = "matrix", collinear_inputs=None) -> xr.Dataset:
     """Conditioned (MIMO) frequency responses of every input/output pair.
 
     Parameters
@@ -311,6 +317,8 @@ def conditioned_response(spectra: xr.Dataset, *, C_eps: float = DEFAULT_C_EPS,
         (default 0.99); conditioned results there are NaN.
     method : {"matrix", "recursion"}
         Normal-equation solve or the paper's Eq. 10 recursion; they agree to rounding.
+    collinear_inputs : sequence of str, optional
+        Inputs whose collinearity is tested (default all; see :func:`collinear`).
 
     Returns
     -------
@@ -320,7 +328,7 @@ def conditioned_response(spectra: xr.Dataset, *, C_eps: float = DEFAULT_C_EPS,
     ``Gxy``, ``coherence`` (Eq. 7), ``cross_coherence`` (Eq. 8), ``input_coherence``.
     """
     ds = _common(spectra)
-    flag = collinear(ds["Gxx"], collinear_threshold)
+    flag = collinear(ds["Gxx"], collinear_threshold, collinear_inputs)
     ds = ds.merge(conditioned_pair_spectra(ds["Gxx"], ds["Gyy"], ds["Gxy"], flag, method))
     with np.errstate(invalid="ignore", divide="ignore"):
         ds["H"] = ds["Gxy_pair"] / ds["Gxx_pair"]

@@ -291,10 +291,20 @@ def check_window(signals: Sequence[xr.DataArray], window: float, overlap: float)
 # spectra
 # --------------------------------------------------------------------------------------------
 
-def _dft_kernel(n_win: int, dt: float, omega: np.ndarray) -> np.ndarray:
-    """Real kernel ``(N, 2F)``: tapered ``[cos | -sin]`` of ``omega n dt`` (Eq. 1-2 scaling)."""
+def hann_taper_rate(n: int, dt: float) -> np.ndarray:
+    """Time derivative (1/s) of :func:`hann_taper` over a segment of ``n`` samples of ``dt``:
+    ``(pi / T) sin(2 pi k / n)``, ``T = n dt``."""
+    k = np.arange(n)
+    return (np.pi / (n * dt)) * np.sin(2.0 * np.pi * k / n)
+
+
+def _dft_kernel(n_win: int, dt: float, omega: np.ndarray,
+                derivative: bool = False) -> np.ndarray:
+    """Real kernel ``(N, 2F)``: tapered ``[cos | -sin]`` of ``omega n dt`` (Eq. 1-2 scaling);
+    with ``derivative`` the taper is replaced by its time derivative (same scaling)."""
     n = np.arange(n_win)
-    taper = dt * HANN_POWER_CORRECTION * hann_taper(n_win)
+    shape = hann_taper_rate(n_win, dt) if derivative else hann_taper(n_win)
+    taper = dt * HANN_POWER_CORRECTION * shape
     phase = np.outer(n * dt, omega)
     return np.concatenate([taper[:, None] * np.cos(phase), -taper[:, None] * np.sin(phase)],
                           axis=1)
@@ -312,9 +322,14 @@ def _segment_transforms(x: np.ndarray, n_win: int, starts: np.ndarray,
     return out.reshape(n_ch, n_seg, n_f)
 
 
+#: Prefix of the transient regressors' input names (see :func:`window_spectra`).
+TRANSIENT_PREFIX = "transient_"
+
+
 def window_spectra(signals: Sequence[xr.DataArray], inputs: Sequence[str],
                    outputs: Sequence[str], window: float, frequency,
-                   overlap: float = DEFAULT_OVERLAP) -> xr.Dataset:
+                   overlap: float = DEFAULT_OVERLAP,
+                   transient: Sequence[str] = ()) -> xr.Dataset:
     """Auto- and cross-spectra of one window length, pooled over records (Eq. 1-6).
 
     Parameters
@@ -329,6 +344,15 @@ def window_spectra(signals: Sequence[xr.DataArray], inputs: Sequence[str],
         Frequencies, rad/s, each below the Nyquist frequency.
     overlap : float
         Fraction of a segment shared with the next one, default 0.8.
+    transient : sequence of str
+        State channels whose transforms taken with the taper's time derivative are appended
+        to the inputs as ``transient_<channel>`` (default none). For a linear system
+        ``x' = A x + B u`` integration by parts over a tapered segment gives exactly
+        ``(j omega - A) X_w = B U_w + X_w'``: the segment's start and end conditions enter
+        through ``X_w'``, the transform of ``x`` weighted by the taper's derivative. Treating
+        ``X_w'`` as extra inputs in the conditioning removes that leakage term, which is
+        large near lightly damped or unstable modes (an unstable bare airframe flown in
+        closed loop) where ``(j omega - A)^-1`` is large.
 
     Returns
     -------
@@ -336,6 +360,8 @@ def window_spectra(signals: Sequence[xr.DataArray], inputs: Sequence[str],
     real, ``Gxy (output, input, frequency)`` complex, scalar ``n_d`` (``T_r / T``) and
     ``n_segments``, scalar coordinate ``window`` (s).
     """
+    transient = list(transient)
+    regressors = list(inputs) + [TRANSIENT_PREFIX + c for c in transient]
     inputs, outputs = list(inputs), list(outputs)
     omega = np.asarray(getattr(frequency, "values", frequency), dtype=float)
     dt = signals[0].attrs["dt"]
@@ -345,7 +371,8 @@ def window_spectra(signals: Sequence[xr.DataArray], inputs: Sequence[str],
     n_d = check_window(signals, window, overlap)
     n_win = int(round(window / dt))
     kernel = _dft_kernel(n_win, dt, omega)
-    n_in = len(inputs)
+    kernel_rate = _dft_kernel(n_win, dt, omega, derivative=True) if transient else None
+    n_in = len(regressors)
     sxx = np.zeros((omega.size, n_in, n_in), complex)
     sxy = np.zeros((omega.size, len(outputs), n_in), complex)
     syy = np.zeros((omega.size, len(outputs)))
@@ -355,7 +382,11 @@ def window_spectra(signals: Sequence[xr.DataArray], inputs: Sequence[str],
         _, starts = segment_layout(x.shape[1], window, dt, overlap)
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported below
             coef = _segment_transforms(x, n_win, starts, kernel).transpose(2, 0, 1)
-            cx, cy = coef[:, :n_in], coef[:, n_in:]               # (F, ch, seg)
+            cx, cy = coef[:, :len(inputs)], coef[:, len(inputs):]   # (F, ch, seg)
+            if transient:
+                rate = _segment_transforms(sig.sel(channel=transient).values, n_win, starts,
+                                           kernel_rate).transpose(2, 0, 1)
+                cx = np.concatenate([cx, rate], axis=1)
             sxx += np.conj(cx) @ cx.transpose(0, 2, 1)           # sum_k conj(X_i) X_j
             sxy += cy @ np.conj(cx).transpose(0, 2, 1)           # sum_k conj(X_i) Y_o
             syy += np.sum(cy.real ** 2 + cy.imag ** 2, axis=-1)  # sum_k |Y_o|^2
@@ -363,7 +394,7 @@ def window_spectra(signals: Sequence[xr.DataArray], inputs: Sequence[str],
     finite = np.concatenate([np.isfinite(np.diagonal(sxx, axis1=1, axis2=2)).all(axis=0),
                              np.isfinite(syy).all(axis=0)])
     if not finite.all() or not np.isfinite(sxx).all() or not np.isfinite(sxy).all():
-        channels = inputs + outputs
+        channels = inputs + transient + outputs   # the channels behind sxx's and syy's rows
         bad = [c for c, ok in zip(channels, finite) if not ok] or channels
         peak = {c: float(max(np.max(np.abs(s.sel(channel=c).values)) for s in signals))
                 for c in bad}
@@ -372,7 +403,7 @@ def window_spectra(signals: Sequence[xr.DataArray], inputs: Sequence[str],
             f"{', '.join(f'{c}: {v:.3g}' for c, v in peak.items())}); expected finite values "
             "of a physical size in analysis units (ft/s, deg/s, deg, %)")
     scale = 2.0 / (n_win * dt) / n_seg_total  # Eq. 3-6: (1/n) sum (2/T) ...
-    coords = {"input": inputs, "input_j": inputs, "output": outputs,
+    coords = {"input": regressors, "input_j": regressors, "output": outputs,
               "frequency": omega, "window": float(window)}
     ds = xr.Dataset(
         {
@@ -403,7 +434,7 @@ def _annotate(ds: xr.Dataset) -> xr.Dataset:
 
 def spectra(signals: Sequence[xr.DataArray], inputs: Sequence[str], outputs: Sequence[str],
             windows: Sequence[float], frequency, overlap: float = DEFAULT_OVERLAP,
-            progress=None) -> xr.Dataset:
+            progress=None, transient: Sequence[str] = ()) -> xr.Dataset:
     """:func:`window_spectra` for several window lengths, stacked along a ``window`` dim (s).
 
     ``progress`` is an optional :class:`sysid.util.Progress` for one line per window.
@@ -412,6 +443,7 @@ def spectra(signals: Sequence[xr.DataArray], inputs: Sequence[str], outputs: Seq
     for T in windows:
         if progress is not None:
             progress.message(f"[sysid] spectra: window {T:g} s")
-        parts.append(window_spectra(signals, inputs, outputs, float(T), frequency, overlap))
+        parts.append(window_spectra(signals, inputs, outputs, float(T), frequency, overlap,
+                                    transient))
     ds = xr.concat(parts, dim="window")
     return _annotate(ds)

@@ -51,6 +51,10 @@ def register(subparsers) -> None:
                    help="random-error constant of Eq. 9 (default 0.7)")
     p.add_argument("--unconditioned", action="store_true",
                    help="single-input estimates instead of MIMO conditioning")
+    p.add_argument("--transient-states", default="",
+                   help="comma-separated measured states (e.g. u,v,w,p,q,r,phi,theta) whose "
+                        "segment start/end leakage is conditioned out (default: none, the "
+                        "paper's method)")
     p.add_argument("--keep-windows", action="store_true",
                    help="also store the per-window results in /frequency_response_windows")
     p.add_argument("--quiet", action="store_true", help="no progress or summary output")
@@ -98,7 +102,8 @@ def run(args) -> int:
         overlap=args.overlap, n_frequencies=args.n_frequencies, omega_min=args.omega_min,
         omega_max=args.omega_max,
         C_eps=DEFAULT_C_EPS if args.C_eps is None else args.C_eps,
-        conditioned=not args.unconditioned, keep_windows=args.keep_windows, progress=progress)
+        conditioned=not args.unconditioned, keep_windows=args.keep_windows, progress=progress,
+        transient_states=args.transient_states)
     composite, per_window = result if args.keep_windows else (result, None)
     update_campaign(args.campaign, "frequency_response", composite)
     if per_window is not None:
