@@ -57,6 +57,7 @@ import numpy as np
 import xarray as xr
 
 from sysid.errors import InputDataError, SysidError
+from sysid.models import parameter_values
 from sysid.util import Progress, atomic_path
 
 #: Default flight conditions, kt (the issue's list).
@@ -309,12 +310,7 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
             if "cramer_rao_percent" in model:
                 crp[i, j] = float(model["cramer_rao_percent"].values[k])
         j_ave[i] = float(model.attrs.get("J_ave", np.nan))
-    truth_values = np.full(len(names), np.nan)
-    if truth is not None:
-        index = {str(p): k for k, p in enumerate(truth.parameter.values)}
-        for j, name in enumerate(names):
-            if name in index:
-                truth_values[j] = float(truth["value"].values[index[name]])
+    truth_values = parameter_values(truth, names)
     j_rms = np.full(len(methods), np.nan)
     try:
         verification = [child.to_dataset() for child in tree["verification"].children.values()]

@@ -14,6 +14,8 @@ from collections.abc import Mapping
 import numpy as np
 import xarray as xr
 
+from sysid.models import parameter_values
+
 #: The derivatives that dominate the hover dynamics (damping and on-axis control power).
 DOMINANT = ("Z_w", "M_q", "L_p", "N_r", "M_lon", "L_lat", "Z_col", "N_ped")
 
@@ -45,12 +47,7 @@ def derivative_table(models: Mapping[str, xr.Dataset], truth: xr.Dataset | None 
             free[i, j] = True
             value[i, j] = float(model["value"].values[k])
             cr[i, j] = float(model["cramer_rao_percent"].values[k])
-    truth_values = np.full(len(names), np.nan)
-    if truth is not None:
-        have = {str(p): k for k, p in enumerate(truth.parameter.values)}
-        for i, name in enumerate(names):
-            if name in have:
-                truth_values[i] = float(truth["value"].values[have[name]])
+    truth_values = parameter_values(truth, names)
     coords = {"parameter": names, "model": methods}
     return xr.Dataset(
         {

@@ -788,6 +788,21 @@ def load_structure(source: str | Path, *, trim: Mapping[str, float] | None = Non
 # --------------------------------------------------------------------------------------------
 
 
+def parameter_values(model: xr.Dataset | None, names: Sequence[str]) -> np.ndarray:
+    """Values of the parameters ``names`` in a model (or truth) Dataset with a ``parameter``
+    dimension and a ``value`` variable, in that order; NaN for a name the model lacks (or
+    for every name when ``model`` is None)."""
+    out = np.full(len(names), np.nan)
+    if model is None:
+        return out
+    index = {str(p): k for k, p in enumerate(model.parameter.values)}
+    values = model["value"].values
+    for j, name in enumerate(names):
+        if name in index:
+            out[j] = float(values[index[name]])
+    return out
+
+
 def model_matrices(model: xr.Dataset) -> tuple[np.ndarray, ...]:
     """``(A, B, C, D, tau)`` arrays of a model Dataset in its own state/input/output order."""
     for var in ("A", "B", "C", "D"):
