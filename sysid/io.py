@@ -32,6 +32,7 @@ attributes as JSON (typed by the attribute rules above), which :func:`read_time_
 
 from __future__ import annotations
 
+import contextlib
 import fnmatch
 import json
 import os
@@ -295,10 +296,40 @@ def update_campaign(path: str | os.PathLike, group: str,
     a missing file starts an empty campaign. A :class:`~xarray.Dataset` replaces that group's
     own variables and attributes and keeps its sub-groups (so updating ``maneuvers``' attrs
     does not drop the manoeuvres); a :class:`~xarray.DataTree` replaces the whole sub-tree.
-    Not safe for several processes updating the same file at once (last writer wins).
+    Processes updating the same file at once are serialised by :func:`campaign_lock`, so
+    each update sees the others' groups (the two fits of one study may run concurrently).
     Returns the campaign as written.
     """
     target = _group_path(group)
+    with campaign_lock(path):
+        return _update_campaign(path, target, dataset, group)
+
+
+@contextlib.contextmanager
+def campaign_lock(path: str | os.PathLike):
+    """Exclusive advisory lock for a read-modify-write of the campaign at ``path``.
+
+    ``flock`` on the campaign's folder, not on a lock file, so nothing is left on disk; it
+    holds across the processes of one machine (Dask workers of a LocalCluster). Where
+    ``fcntl`` does not exist (Windows) the lock is a no-op and concurrent updates of one
+    file are not safe.
+    """
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        yield
+        return
+    folder = Path(path).resolve().parent
+    folder.mkdir(parents=True, exist_ok=True)
+    descriptor = os.open(folder, os.O_RDONLY)
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(descriptor)  # closing the descriptor releases the lock
+
+
+def _update_campaign(path, target: str, dataset, group: str) -> xr.DataTree:
     nodes = _nodes(read_campaign(path)) if Path(path).exists() else {"/": xr.Dataset()}
     if isinstance(dataset, xr.DataTree):
         nodes = {p: ds for p, ds in nodes.items()

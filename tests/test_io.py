@@ -142,6 +142,32 @@ def test_update_campaign_insert_replace_and_keep_children(tmp_path):
     assert io.list_maneuvers(io.read_campaign(path)) == ["only"]
 
 
+def _update_many(path: str, writer: int, count: int) -> None:
+    for k in range(count):
+        io.update_campaign(path, f"models/writer{writer}_{k}",
+                           xr.Dataset({"value": ("parameter", [float(k)])}))
+
+
+def test_concurrent_updates_from_processes_keep_every_group(tmp_path):
+    """Two processes each adding groups to one campaign (the two fits of a study in a Dask
+    batch): every group of both survives. Without the lock in update_campaign each
+    read-modify-write can drop the other process's last group."""
+    import multiprocessing
+
+    path = tmp_path / "c.nc"
+    io.write_campaign(_campaign(), path)
+    context = multiprocessing.get_context("spawn")
+    workers = [context.Process(target=_update_many, args=(str(path), w, 12)) for w in (0, 1)]
+    for w in workers:
+        w.start()
+    for w in workers:
+        w.join(120)
+        assert w.exitcode == 0
+    written = {n for n in io.read_campaign(path)["models"].children if n.startswith("writer")}
+    assert written == {f"writer{w}_{k}" for w in (0, 1) for k in range(12)}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.nc"]   # no lock file left
+
+
 def test_write_failure_leaves_previous_file(tmp_path):
     path = tmp_path / "c.nc"
     io.write_campaign(_campaign(), path)
