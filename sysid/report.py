@@ -915,6 +915,11 @@ def section_provenance(ctx: _Context) -> str:
                 if k in ds.attrs]
         if info:
             rows.append([f"model {m}", "; ".join(map(str, info))])
+    # Stamped by sysid.workflow on each stage's group: seconds the stage took when computed.
+    timings = [f"{node.path.strip('/')} {float(node.attrs['workflow_elapsed_s']):.1f} s"
+               for node in ctx.tree.subtree if "workflow_elapsed_s" in node.attrs]
+    if timings:
+        rows.append(["workflow stage times", ", ".join(timings)])
     toml = root.get("campaign_toml")
     settings = (f"<h3>Campaign settings</h3><pre>{_esc(toml)}</pre>" if toml
                 else _not_available("no campaign_toml attribute on the root group"))

@@ -14,7 +14,13 @@ Each stage is the same code as its ``sysid`` sub-command (the workflow drives th
 Caching: every stage stamps its result group with a key hashing its settings and the key of
 the stage before it. A re-run skips a stage whose group carries the key it would write, so
 changing e.g. the structure re-runs identification and everything after it, but not the
-campaign.
+campaign. Each stamp also records how long the stage took (``workflow_elapsed_s``), and the
+report lists those times.
+
+Parts: ``run_study(..., parts=...)`` runs a subset of :data:`PARTS` (data, the two fits,
+results). The fits do not read each other, so two processes may run them at once on the
+same folder (:func:`sysid.io.update_campaign` serialises their writes); :mod:`sysid.batch`
+does so to keep its workers busy.
 """
 
 from __future__ import annotations
@@ -83,13 +89,14 @@ def _group_key(path: Path, group: str) -> str | None:
     return node.attrs.get("workflow_key")
 
 
-def _stamp(path: Path, group: str, key: str) -> None:
+def _stamp(path: Path, group: str, key: str, elapsed_s: float) -> None:
     from sysid.io import read_campaign, update_campaign
 
     tree = read_campaign(path)
     node = tree[group]
     ds = node.to_dataset(inherit=False)
     ds.attrs["workflow_key"] = key
+    ds.attrs["workflow_elapsed_s"] = round(float(elapsed_s), 2)
     update_campaign(path, group, ds)
 
 
@@ -101,105 +108,150 @@ def _cli(*args: str) -> None:
         raise SysidError(f"stage 'sysid {args[0]}' failed (exit status {status})")
 
 
+#: The study's parts, in the order :func:`run_study` runs them. ``data`` is the campaign and
+#: its frequency responses; the two identifications need only ``data`` and not each other
+#: (the paper compares independent fits), so they may run at the same time, e.g. as separate
+#: Dask tasks (:mod:`sysid.batch`); ``results`` is verification, comparison, export and
+#: validation, and the report.
+PARTS = ("data", "frequency_domain", "time_domain", "results")
+
+
 def run_study(out_dir: str | Path, settings: StudySettings | None = None, *,
-              quiet: bool = False) -> Path:
-    """Run every stage at one flight condition; return the report path."""
+              quiet: bool = False, parts: tuple[str, ...] | list[str] = PARTS) -> Path | None:
+    """Run the study at one flight condition; return the report path.
+
+    ``parts`` (a subset of :data:`PARTS`) runs only those parts, each reusing what the parts
+    before it stored (a part whose inputs are not stored yet computes them first). Returns
+    ``None`` when ``results`` is not among them.
+    """
     from sysid.util import blas_threads
 
+    unknown = [p for p in parts if p not in PARTS]
+    if unknown:
+        raise SysidError(f"run_study: unknown part(s) {unknown}; expected some of {PARTS}")
     with blas_threads():
-        return _run_study(out_dir, settings, quiet=quiet)
+        study = _Study(out_dir, settings or StudySettings(), quiet=quiet)
+        report = None
+        for part in PARTS:
+            if part in parts:
+                report = getattr(study, part)()
+        return report
 
 
-def _run_study(out_dir: str | Path, settings: StudySettings | None, *, quiet: bool) -> Path:
-    from sysid import fmu
-    from sysid.frequency_response import siso_frequency_response
-    from sysid.io import maneuvers, read_campaign, update_campaign
-    from sysid.maneuvers import Campaign, default_campaign, run_campaign
-    from sysid.report import write_report
-    from sysid.units import CONTROLS, STATES_6DOF
+class _Study:
+    """The stages of :func:`run_study`. Every stage's cache key hashes its settings and the
+    keys of the stages it reads, so each key is known without running anything."""
 
-    settings = settings or StudySettings()
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / "campaign.nc"
-    progress = Progress(quiet=quiet)
-    quiet_flag = ["--quiet"] if quiet else []
-    timings: dict[str, float] = {}
+    def __init__(self, out_dir: str | Path, settings: StudySettings, *, quiet: bool):
+        from sysid import fmu
+        from sysid.maneuvers import Campaign, default_campaign
 
-    def stage(name: str, group: str, key: str, work) -> str:
-        start = time.perf_counter()
-        stored = _group_key(path, group)
-        if stored == key:
-            progress.message(f"[sysid] {name}: cached")
+        self.settings = settings
+        self.out = Path(out_dir)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.path = self.out / "campaign.nc"
+        self.quiet = quiet
+        self.quiet_flag = ["--quiet"] if quiet else []
+        self.progress = Progress(quiet=quiet)
+        self.fmu_path = fmu.build_fmu()
+        if settings.campaign_file:
+            self.campaign = Campaign.from_toml(settings.campaign_file)
         else:
-            if stored is not None:
-                progress.message(f"[sysid] {name}: inputs changed, recomputing")
-            with progress.stage(name):
-                work()
-            _stamp(path, group, key)
-        timings[name] = time.perf_counter() - start
-        return key
+            self.campaign = default_campaign(settings.airspeed_kt, noise=settings.noise,
+                                             seed=settings.seed)
+        self.key_campaign = _key("campaign", self.campaign.to_toml(), self.fmu_path.name,
+                                 sysid.__version__)
+        self.key_fr = _key("fr", self.key_campaign, settings.sweep_maneuvers)
+        self.key_fd = _key("fd", self.key_fr, settings.structure, settings.fd_coherence_min)
+        # The time-domain fit starts from the linearisation, not from the frequency-domain
+        # result, so that the two identifications are independent.
+        self.key_td = _key("td", self.key_campaign, settings.structure,
+                           settings.time_domain_maneuvers)
+        self.key_models = _key(self.key_fd, self.key_td)
 
-    # 1. Campaign (trim and linearisation included) on the truth FMU.
-    fmu_path = fmu.build_fmu()
-    if settings.campaign_file:
-        campaign = Campaign.from_toml(settings.campaign_file)
-    else:
-        campaign = default_campaign(settings.airspeed_kt, noise=settings.noise,
-                                    seed=settings.seed)
-    key = _key("campaign", campaign.to_toml(), fmu_path.name, sysid.__version__)
-    key = stage("campaign", "maneuvers", key,
-                lambda: run_campaign(campaign, path, quiet=quiet, fmu=fmu_path))
+    def stage(self, name: str, group: str, key: str, work) -> None:
+        stored = _group_key(self.path, group)
+        if stored == key:
+            self.progress.message(f"[sysid] {name}: cached")
+            return
+        if stored is not None:
+            self.progress.message(f"[sysid] {name}: inputs changed, recomputing")
+        start = time.perf_counter()
+        with self.progress.stage(name):
+            work()
+        _stamp(self.path, group, key, time.perf_counter() - start)
 
-    # 2. Conditioned composite responses, and the unconditioned ones for comparison.
-    def responses():
-        _cli("frequency-response", path, "--inputs", ",".join(CONTROLS),
-             "--outputs", ",".join(STATES_6DOF), "--maneuvers", settings.sweep_maneuvers,
-             *quiet_flag)
-        records = maneuvers(read_campaign(path), settings.sweep_maneuvers)
-        siso = siso_frequency_response(records, CONTROLS, STATES_6DOF)
-        update_campaign(path, "frequency_response_siso", siso)
+    def needs(self, group: str, key: str, part: str) -> None:
+        """Run ``part`` first unless ``group`` already holds the result of key ``key``."""
+        if _group_key(self.path, group) != key:
+            getattr(self, part)()
 
-    key = stage("frequency responses", "frequency_response",
-                _key("fr", key, settings.sweep_maneuvers), responses)
+    # 1-2. Campaign (trim and linearisation included) on the truth FMU; conditioned
+    #      composite responses, and the unconditioned ones for comparison.
+    def data(self) -> None:
+        from sysid.frequency_response import siso_frequency_response
+        from sysid.io import maneuvers, read_campaign, update_campaign
+        from sysid.maneuvers import run_campaign
+        from sysid.units import CONTROLS, STATES_6DOF
+
+        self.stage("campaign", "maneuvers", self.key_campaign,
+                   lambda: run_campaign(self.campaign, self.path, quiet=self.quiet,
+                                        fmu=self.fmu_path))
+
+        def responses():
+            _cli("frequency-response", self.path, "--inputs", ",".join(CONTROLS),
+                 "--outputs", ",".join(STATES_6DOF), "--maneuvers",
+                 self.settings.sweep_maneuvers, *self.quiet_flag)
+            records = maneuvers(read_campaign(self.path), self.settings.sweep_maneuvers)
+            siso = siso_frequency_response(records, CONTROLS, STATES_6DOF)
+            update_campaign(self.path, "frequency_response_siso", siso)
+
+        self.stage("frequency responses", "frequency_response", self.key_fr, responses)
 
     # 3. Frequency-domain identification with model reduction.
-    key_fd = stage("frequency-domain identification", "models/frequency_domain",
-                   _key("fd", key, settings.structure, settings.fd_coherence_min),
-                   lambda: _cli("identify", path, "--structure", settings.structure,
-                                "--coherence-min", settings.fd_coherence_min, *quiet_flag))
+    def frequency_domain(self) -> None:
+        settings = self.settings
+        self.needs("frequency_response", self.key_fr, "data")
+        self.stage("frequency-domain identification", "models/frequency_domain", self.key_fd,
+                   lambda: _cli("identify", self.path, "--structure", settings.structure,
+                                "--coherence-min", settings.fd_coherence_min,
+                                *self.quiet_flag))
 
-    # 4. Time-domain identification on the multisteps, started from the linearisation so
-    #    that it is independent of the frequency-domain result (the paper compares two
-    #    independent identifications).
-    key_td = stage("time-domain identification", "models/time_domain",
-                   _key("td", key, settings.structure, settings.time_domain_maneuvers),
-                   lambda: _cli("identify-time", path, "--maneuvers",
+    # 4. Time-domain identification on the multisteps, started from the linearisation.
+    def time_domain(self) -> None:
+        settings = self.settings
+        self.needs("maneuvers", self.key_campaign, "data")
+        self.stage("time-domain identification", "models/time_domain", self.key_td,
+                   lambda: _cli("identify-time", self.path, "--maneuvers",
                                 settings.time_domain_maneuvers, "--structure",
-                                settings.structure, "--start", "linearization", *quiet_flag))
+                                settings.structure, "--start", "linearization",
+                                *self.quiet_flag))
 
-    # 5. Verification of both models on manoeuvres neither was fitted to.
-    key_models = _key(key_fd, key_td)
-    verify_key = _key("verify", key_models, settings.verification_maneuvers)
-    first_verified = f"verification/{_first(path, settings.verification_maneuvers)}"
-    stage("verification", first_verified, verify_key,
-          lambda: _cli("verify", path, "--model", "frequency_domain,time_domain",
-                       "--maneuvers", settings.verification_maneuvers, *quiet_flag))
+    # 5-8. Verification, comparison, export and validation, report.
+    def results(self) -> Path:
+        from sysid.io import read_campaign
+        from sysid.report import write_report
 
-    # 6. Derivative comparison (Tables 2-3).
-    stage("domain comparison", "comparison", _key("compare", key_models),
-          lambda: _cli("compare", path, "--csv", out / "comparison.csv"))
-
-    # 7. Export both models as FMUs and validate them against the truth FMU and the data.
-    stage("FMU export and validation", "validation", _key("validate", key_models),
-          lambda: _cli("validate", path, "--fmu-dir", out, *quiet_flag))
-
-    # 8. Report (always rewritten: cheap, and it records this run's timings).
-    with progress.stage("report"):
-        tree = read_campaign(path)
-        tree.attrs["stage_timings_s"] = json.dumps({k: round(v, 2) for k, v in timings.items()})
-        report = write_report(tree, out, quiet=quiet)
-    return report
+        settings, path, out = self.settings, self.path, self.out
+        self.needs("models/frequency_domain", self.key_fd, "frequency_domain")
+        self.needs("models/time_domain", self.key_td, "time_domain")
+        # 5. Verification of both models on manoeuvres neither was fitted to.
+        verify_key = _key("verify", self.key_models, settings.verification_maneuvers)
+        first_verified = f"verification/{_first(path, settings.verification_maneuvers)}"
+        self.stage("verification", first_verified, verify_key,
+                   lambda: _cli("verify", path, "--model", "frequency_domain,time_domain",
+                                "--maneuvers", settings.verification_maneuvers,
+                                *self.quiet_flag))
+        # 6. Derivative comparison (Tables 2-3).
+        self.stage("domain comparison", "comparison", _key("compare", self.key_models),
+                   lambda: _cli("compare", path, "--csv", out / "comparison.csv"))
+        # 7. Export both models as FMUs and validate them against the truth FMU and the data.
+        self.stage("FMU export and validation", "validation",
+                   _key("validate", self.key_models),
+                   lambda: _cli("validate", path, "--fmu-dir", out, *self.quiet_flag))
+        # 8. Report (always rewritten: cheap); it lists each stage's stamped time.
+        with self.progress.stage("report"):
+            return write_report(read_campaign(path), out, quiet=self.quiet)
 
 
 def _first(path: Path, pattern: str) -> str:

@@ -36,6 +36,24 @@ def _perturbation(ds: xr.Dataset, channel: str) -> np.ndarray:
     return ds[channel].values - ds.attrs[f"trim_{channel}"]
 
 
+def test_rerun_of_finished_parts_recomputes_nothing(study):
+    """Every stage is stamped with its cache key and the seconds it took; a re-run of the
+    parts before the results finds them all cached and so leaves the campaign untouched."""
+    from sysid.errors import SysidError
+    from sysid.workflow import PARTS, StudySettings, run_study
+
+    path = study["dir"] / "campaign.nc"
+    before = path.stat().st_mtime_ns
+    assert run_study(study["dir"], StudySettings(), quiet=True, parts=PARTS[:-1]) is None
+    assert path.stat().st_mtime_ns == before
+    html = study["report"].read_text()
+    for group in ("maneuvers", "frequency_response", "models/frequency_domain",
+                  "models/time_domain", "comparison", "validation"):
+        assert re.search(rf"{group} [0-9.]+ s", html), group
+    with pytest.raises(SysidError, match="unknown part"):
+        run_study(study["dir"], StudySettings(), quiet=True, parts=("fit",))
+
+
 # -- Flight-test campaign (issue 3) -------------------------------------------------------
 def test_sweeps_stay_near_trim_and_move_every_control(study):
     tree = study["tree"]
