@@ -1,11 +1,14 @@
 """Many flight conditions (and Monte Carlo seeds) on Dask: the whole study per condition.
 
 :func:`run_batch` runs :func:`sysid.workflow.run_study` once per :class:`Condition` (airspeed,
-seed, noise, structure), each as one independent Dask task writing its own folder::
+seed, noise, structure), independently of the others and in its own folder. Each study is
+four Dask tasks, one per part of :data:`sysid.workflow.PARTS`: the data (campaign and
+frequency responses), then the frequency- and the time-domain fits side by side, then the
+results (verification, comparison, export, report)::
 
     <out>/<condition>/          the condition's study (campaign.nc, FMUs, report.html)
     <out>/<condition>/condition.json   what ran and how it ended (the resume marker)
-    <out>/<condition>/study.log        the stages' printed tables
+    <out>/<condition>/study_<part>.log the stages' printed tables, one log per part
     <out>/batch.nc              every condition's results on one ``condition`` dimension
     <out>/batch_derivatives.png every derivative against airspeed: identified values with
                                 Cramer-Rao bars, the truth linearisation overlaid
@@ -233,37 +236,79 @@ def completed(condition: Condition, folder: str | Path) -> bool:
 
 
 def run_condition(spec: dict, folder: str, fail: str | None = None) -> dict:
-    """Run one condition's study in ``folder``; never raises (the Dask task).
+    """Run one condition's whole study in ``folder``, its parts one after another; never
+    raises. Returns the record of :func:`run_condition_part`'s last part."""
+    from sysid.workflow import PARTS
 
-    Returns ``{"name", "status": "ok"|"failed", "error_type", "message", "elapsed_s",
-    "summary": Dataset|None}``. ``fail`` (for fault-injection tests) raises the named
-    exception class of :mod:`sysid.errors` before the study starts.
+    records: tuple[dict, ...] = ()
+    for part in PARTS:
+        records = (run_condition_part(spec, folder, part, fail, *records),)
+    return records[0]
+
+
+#: The parts of a study each part needs (``sysid.workflow.PARTS``): the two fits read only
+#: the data, so they run as separate tasks at the same time.
+PART_NEEDS = {"data": (), "frequency_domain": ("data",), "time_domain": ("data",),
+              "results": ("frequency_domain", "time_domain")}
+
+
+def run_condition_part(spec: dict, folder: str, part: str, fail: str | None = None,
+                       *upstream: dict) -> dict:
+    """One part of one condition's study in ``folder`` (a Dask task); never raises.
+
+    ``upstream`` are the records of the parts this one needs (:data:`PART_NEEDS`, in Dask
+    the results of their tasks): if one of them failed, this part does not run and passes
+    that failure on. ``fail`` (for fault-injection tests) raises the named exception class
+    of :mod:`sysid.errors` before the ``data`` part starts. The ``results`` part writes the
+    resume marker ``condition.json``, also for a failure that happened upstream.
+
+    Returns ``{"name", "condition", "status": "ok"|"failed", "error_type", "message",
+    "part_elapsed_s": {part: s}, "elapsed_s" (their sum), "summary": Dataset|None}``.
     """
+    import dask
+
     from sysid import errors
     from sysid.workflow import run_study
 
-    start = time.perf_counter()
     condition = Condition(**spec)
     folder_path = Path(folder)
+    part_elapsed: dict[str, float] = {}
+    for previous in upstream:
+        part_elapsed.update(previous.get("part_elapsed_s", {}))
     record = {"name": condition.name, "condition": condition.to_dict(), "status": "ok",
               "error_type": "", "message": "", "summary": None}
-    try:
-        if fail:
-            raise getattr(errors, fail)(f"injected failure for condition {condition.name}")
-        folder_path.mkdir(parents=True, exist_ok=True)
-        # The stages' tables go to the condition's own log, not the worker's terminal.
-        with open(folder_path / "study.log", "w") as log, \
-                contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
-            run_study(folder_path, study_settings(condition, folder_path), quiet=True)
-        record["summary"] = condition_summary(folder_path)
-    except Exception as exc:  # noqa: BLE001 - the batch must survive any condition
-        record.update(status="failed", error_type=type(exc).__name__,
-                      message=str(exc).splitlines()[0] if str(exc) else repr(exc))
-    record["elapsed_s"] = time.perf_counter() - start
-    try:
-        _write_marker(folder_path, {k: v for k, v in record.items() if k != "summary"})
-    except OSError:
-        pass
+    failed = [r for r in upstream if r["status"] != "ok"]
+    start = time.perf_counter()
+    if failed:
+        record.update({k: failed[0][k] for k in ("status", "error_type", "message")})
+    else:
+        try:
+            if fail and part == "data":
+                raise getattr(errors, fail)(f"injected failure for condition {condition.name}")
+            folder_path.mkdir(parents=True, exist_ok=True)
+            # The stages' tables go to the part's own log, not the worker's terminal. Inside
+            # a Dask worker xarray would guard every netCDF access with a lock held by the
+            # scheduler (a network round trip per variable): a part took 2.3x as long and
+            # kept the scheduler's process busy. The part's own I/O needs no cluster lock
+            # (update_campaign locks the folder), so it runs on the local scheduler.
+            with open(folder_path / f"study_{part}.log", "w") as log, \
+                    contextlib.redirect_stdout(log), contextlib.redirect_stderr(log), \
+                    dask.config.set(scheduler="synchronous"):
+                run_study(folder_path, study_settings(condition, folder_path), quiet=True,
+                          parts=(part,))
+            if part == "results":
+                record["summary"] = condition_summary(folder_path)
+        except Exception as exc:  # noqa: BLE001 - the batch must survive any condition
+            record.update(status="failed", error_type=type(exc).__name__,
+                          message=str(exc).splitlines()[0] if str(exc) else repr(exc))
+        part_elapsed[part] = time.perf_counter() - start
+    record["part_elapsed_s"] = part_elapsed
+    record["elapsed_s"] = sum(part_elapsed.values())
+    if part == "results":
+        try:
+            _write_marker(folder_path, {k: v for k, v in record.items() if k != "summary"})
+        except OSError:
+            pass
     return record
 
 
@@ -371,6 +416,21 @@ def _client(scheduler: str | None, n_workers: int, quiet: bool):
     return Client(cluster), cluster
 
 
+def _submit_condition(client, condition: Condition, folder: Path, fail: str | None):
+    """Submit one condition's study as one Dask task per part (:data:`PART_NEEDS`); return
+    the future of its last part. Finer tasks than whole studies keep both workers busy to
+    the end of the batch (the two fits of a condition run side by side)."""
+    from sysid.workflow import PARTS
+
+    stamp = time.time_ns()
+    tasks: dict = {}
+    for part in PARTS:
+        tasks[part] = client.submit(run_condition_part, condition.to_dict(), str(folder), part,
+                                    fail, *(tasks[n] for n in PART_NEEDS[part]), pure=False,
+                                    key=f"sysid-{part}-{condition.name}-{stamp}")
+    return tasks[PARTS[-1]]
+
+
 def run_batch(conditions: Sequence[Condition], out_dir: str | Path, *,
               scheduler: str | None = None, n_workers: int = 2, quiet: bool = False,
               inject_failure: dict[str, str] | None = None) -> BatchResult:
@@ -421,10 +481,8 @@ def run_batch(conditions: Sequence[Condition], out_dir: str | Path, *,
 
             futures = {}
             for c in todo:
-                fut = client.submit(run_condition, c.to_dict(), str(out / c.name),
-                                    inject_failure.get(c.name), pure=False,
-                                    key=f"sysid-condition-{c.name}-{time.time_ns()}")
-                futures[fut] = c
+                futures[_submit_condition(client, c, out / c.name,
+                                          inject_failure.get(c.name))] = c
             done = 0
             for fut in as_completed(futures):
                 c = futures[fut]
@@ -691,7 +749,7 @@ def default_conditions(*, quick: bool = False) -> list[Condition]:
 
 
 __all__ = ["Condition", "BatchResult", "conditions", "load_conditions", "default_conditions",
-           "run_batch", "run_condition", "condition_summary", "combine", "plot_derivatives",
-           "monte_carlo", "structure_for", "quick_campaign", "read_batch", "DEFAULT_SPEEDS",
+           "run_batch", "run_condition", "run_condition_part", "condition_summary", "combine",
+           "plot_derivatives", "monte_carlo", "structure_for", "quick_campaign", "read_batch", "DEFAULT_SPEEDS",
            "FORWARD_FLIGHT_KT"]
 
