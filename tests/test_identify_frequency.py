@@ -10,6 +10,7 @@ reduction has a well-defined answer.
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -418,3 +419,29 @@ def test_fallback_coherence_admits_weak_pairs_only():
     lo, hi = relaxed.ranges["p/lon"]
     assert lo > 1 and hi < 5          # only the part above the fallback threshold
     assert relaxed.ranges["q/lon"] == strict.ranges["q/lon"]
+
+
+def test_roll_row_running_away_is_anchored_at_the_start_damping():
+    """Responses of a quasi-static roll axis (the roll row of the truth times 1e5, as when the
+    roll subsidence lies far above the fitted band) determine only the ratios L_x / L_p. The
+    unguarded fit slides along that valley to 1e5 times the start values with no usable
+    Cramer-Rao bound; the default fit holds L_p at its start value and keeps the row finite."""
+    from sysid.identify.frequency_domain import runaway_parameters
+
+    values = {k: v for k, v in truth_values().items() if k not in TRUE_DELAYS}
+    row = ("L_u", "L_v", "L_p", "L_lon", "L_lat")
+    st = six_dof_structure(theta0=THETA0, phi0=PHI0, free=row, values=values)
+    data = analytic_response(st, st.theta0 * 1e5)
+    kw = dict(pairs="p/lat,p/lon,v/lat,q/lat", start=st.theta0, reduce=False)
+    free = identify_frequency_domain(data, st, anchor_runaways=False, **kw)
+    assert set(runaway_parameters(st.free_names, free.theta, st.theta0, free.statistics)) \
+        == set(row)
+    anchored = identify_frequency_domain(data, st, **kw)
+    assert json.loads(anchored.model.attrs["anchored_parameters"]) == {"L_p": values["L_p"]}
+    assert anchored.value("L_p") == values["L_p"]
+    assert "held at their start values (their row ran away): L_p = " in anchored.table()
+    for name in row:
+        assert abs(anchored.value(name)) < 2.0 * abs(values[name]), name
+    assert not runaway_parameters(anchored.structure.free_names, anchored.theta,
+                                  [values[n] for n in anchored.structure.free_names],
+                                  anchored.statistics)

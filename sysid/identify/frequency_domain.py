@@ -83,6 +83,18 @@ W_G = 1.0  #: magnitude weight (per dB^2), methods.md
 W_P = 0.01745  #: phase weight (per deg^2), methods.md
 COHERENCE_MIN = 0.6  #: coherence guideline for the fitted range (paper, methods.md)
 N_POINTS = 20  #: frequency points per pair (methods.md)
+#: A free parameter has "run away" when the fit ends with it this many times larger than its
+#: start value (and than 1 in analysis units) and its Cramer-Rao bound is unbounded or above
+#: :data:`RUNAWAY_CR_PERCENT`: the optimiser slid along a valley in which only ratios are
+#: determined. Example: a roll-subsidence pole above the fitted band leaves only
+#: ``L_x / L_p`` in p/lat, and the whole roll row grows together (quick 100-kt campaign:
+#: 27x the linearisation, CR 235-250 %, on to 1e15 in the model reduction).
+RUNAWAY_FACTOR = 10.0
+RUNAWAY_CR_PERCENT = 100.0
+#: Runaway damping derivatives are held at their start values (the a priori model), which
+#: fixes the scale of their row while the ratios of the others to them stay identified.
+#: Other runaway parameters are left to the model reduction.
+DAMPING_DERIVATIVES = ("L_p", "M_q", "N_r", "Z_w", "Y_v", "X_u")
 _DB = 20.0 / math.log(10.0)
 _DEG = 180.0 / math.pi
 
@@ -555,6 +567,48 @@ def _converge(structure: LinearStructure, data: FitData, theta0, *, method: str,
                       int(res_nfev), int(status), str(msg))
 
 
+def runaway_parameters(names: Sequence[str], theta, start, statistics: ParameterStatistics
+                       ) -> list[str]:
+    """Free parameters that ran away from their start values (see :data:`RUNAWAY_FACTOR`)."""
+    theta, start = np.asarray(theta, float), np.asarray(start, float)
+    large = np.abs(theta) > RUNAWAY_FACTOR * np.maximum(np.abs(start), 1.0)
+    with np.errstate(invalid="ignore"):
+        undetermined = (~statistics.identifiable
+                        | ~(statistics.cramer_rao_percent <= RUNAWAY_CR_PERCENT))
+    return [n for n, a, b in zip(names, large, undetermined) if a and b]
+
+
+def _anchor_runaways(structure: LinearStructure, data: FitData, theta0, full: _Converged,
+                     kw: dict, progress: Progress, max_anchors: int = 3):
+    """Hold runaway parameters at their start values, one at a time, and refit.
+
+    Returns ``(structure, theta0, full, anchored)``: the structure with the anchored
+    parameters fixed, the start vector of its free parameters, the refitted result and
+    ``{name: value}`` of the anchors (in the order they were fixed).
+    """
+    anchored: dict[str, float] = {}
+    for _ in range(max_anchors):
+        # A parameter without any influence on the fitted pairs drifts too; removing it is
+        # the model reduction's job (it fixes it at zero), so only influential ones count.
+        columns = np.linalg.norm(_Problem(structure, data).jacobian(theta0), axis=0)
+        influential = set(np.asarray(structure.free_names)[columns > 1e-12 * columns.max()])
+        runaway = [n for n in runaway_parameters(structure.free_names, full.theta, theta0,
+                                                 full.statistics) if n in influential]
+        anchor = next((n for n in DAMPING_DERIVATIVES if n in runaway), None)
+        if anchor is None:
+            break
+        start = dict(zip(structure.free_names, np.asarray(theta0, float)))
+        anchored[anchor] = float(start[anchor])
+        progress.message(f"[sysid] identify: {', '.join(runaway)} ran away together (Cramer-Rao "
+                         f"bound over {RUNAWAY_CR_PERCENT:g} %, values over "
+                         f"{RUNAWAY_FACTOR:g}x their start values): "
+                         f"{anchor} held at its start value {start[anchor]:.5g} and refitted")
+        structure = structure.fix([anchor], start[anchor])
+        theta0 = np.array([start[n] for n in structure.free_names])
+        full = _converge(structure, data, theta0, **kw)
+    return structure, theta0, full, anchored
+
+
 @dataclass
 class FrequencyFitResult:
     """Outcome of :func:`identify_frequency_domain`.
@@ -623,6 +677,10 @@ class FrequencyFitResult:
         lines.append("cost per pair: " + ", ".join(
             f"{k} {v:.2f}" for k, v in self.pair_cost.items() if k not in ("J", "J_ave")))
         lines.append(f"J_ave = {self.J_ave:.3f} over {len(self.data.pairs)} pairs")
+        anchored = json.loads(m.attrs.get("anchored_parameters", "{}"))
+        if anchored:
+            lines.append("held at their start values (their row ran away): " + ", ".join(
+                f"{k} = {v:.5g}" for k, v in anchored.items()))
         if self.data.skipped:
             lines.append("skipped pairs: " + "; ".join(f"{k} ({v})"
                                                        for k, v in self.data.skipped.items()))
@@ -644,6 +702,7 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
                               protected: Sequence[str] = (), method: str = "trf",
                               tol: float = 1e-10, max_nfev: int | None = None,
                               restart_fraction: float = 0.2, seed: int = 0,
+                              anchor_runaways: bool = True,
                               quiet: bool = True, progress: Progress | None = None
                               ) -> FrequencyFitResult:
     """Identify a structure from composite frequency responses (CIFER-style output error).
@@ -676,6 +735,11 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
     restart_fraction, seed : float, int
         The final fit is restarted from its solution perturbed by ``+-restart_fraction``
         (relative, seeded) to confirm the minimum.
+    anchor_runaways : bool
+        After the first fit, hold a damping derivative that ran away along an
+        unidentifiable valley (:func:`runaway_parameters`) at its start value and refit
+        (repeated for up to three); recorded in the model's ``anchored_parameters`` attribute (JSON
+        ``{name: value}``). Default True.
     quiet, progress
         Per-stage lines on stderr unless quiet.
 
@@ -715,6 +779,10 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
     with progress.stage(f"frequency-domain fit of {len(structure.free_index)} parameters on "
                         f"{len(data.pairs)} pairs"):
         full = _converge(structure, data, theta0, **kw)
+        anchored: dict[str, float] = {}
+        if anchor_runaways:
+            structure, theta0, full, anchored = _anchor_runaways(structure, data, theta0,
+                                                                 full, kw, progress)
         progress.message(f"[sysid]   converged: J_ave = {full.J_ave:.3f} ({full.nfev} cost "
                          f"evaluations)")
     reduction = None
@@ -751,6 +819,7 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
     elapsed = time.perf_counter() - t_start
     model = _model_dataset(final, data, reduction, start_kind, restart, counter, fr, elapsed,
                            method)
+    model.attrs["anchored_parameters"] = json.dumps(anchored)
     return FrequencyFitResult(model, final.structure, final.theta, final.statistics, pair_cost,
                               final.J, final.J_ave, data, reduction, start_kind, restart,
                               counter["cost"], counter["jacobian"], elapsed,
