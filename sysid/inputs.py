@@ -133,7 +133,8 @@ def frequency_sweep(axis: str, *, omega_min: float = 0.3, omega_max: float = 20.
                     long_period_cycles: float = 2.0, C1: float = 4.0, C2: float = 0.0187,
                     perturbation: float = 0.0, seed: int | None = None,
                     low_frequency_fraction: float = 1.0,
-                    full_amplitude_omega: float | None = None) -> xr.Dataset:
+                    full_amplitude_omega: float | None = None,
+                    amplitude_shape: float = 1.0) -> xr.Dataset:
     """Tischler's automated frequency sweep on one control axis.
 
     Parameters
@@ -172,6 +173,12 @@ def frequency_sweep(axis: str, *, omega_min: float = 0.3, omega_max: float = 20.
         axis whose low-frequency response is large (a hingeless rotor's pitch and roll): keep
         the attitude excursions bounded while the high-frequency response stays measurable.
         Default: constant amplitude.
+    amplitude_shape
+        Exponent of the schedule's rise: the amplitude fraction is
+        ``f + (1 - f) * x**amplitude_shape`` with ``x`` the position in log-frequency from
+        ``omega_min`` (0) to ``full_amplitude_omega`` (1). 1 (default) is the linear rise;
+        above 1 the amplitude stays low longer and rises steeply just below
+        ``full_amplitude_omega``.
 
     Returns
     -------
@@ -214,7 +221,8 @@ def frequency_sweep(axis: str, *, omega_min: float = 0.3, omega_max: float = 20.
     phase = sweep_phase(t, omega_min=omega_min, omega_max=omega_max, t_dwell=t_dwell,
                         t_exp=t_exp, C1=C1, C2=C2)
     x[n_in:n_in + n_sweep] = amplitude * np.sin(phase) * _amplitude_schedule(
-        np.gradient(phase, dt), omega_min, low_frequency_fraction, full_amplitude_omega)
+        np.gradient(phase, dt), omega_min, low_frequency_fraction, full_amplitude_omega,
+        amplitude_shape)
     if perturbation:
         g = rng(seed)
         noise = g.standard_normal(n_sweep)
@@ -231,6 +239,7 @@ def frequency_sweep(axis: str, *, omega_min: float = 0.3, omega_max: float = 20.
         "t_dwell": t_dwell, "t_exp": t_exp,
         "low_frequency_fraction": low_frequency_fraction,
         "full_amplitude_omega": full_amplitude_omega or omega_min,
+        "amplitude_shape": amplitude_shape,
         "perturbation": perturbation, "seed": -1 if not perturbation else int(seed),
         "hold": "linear",
     }
@@ -238,8 +247,10 @@ def frequency_sweep(axis: str, *, omega_min: float = 0.3, omega_max: float = 20.
 
 
 def _amplitude_schedule(omega: np.ndarray, omega_min: float, fraction: float,
-                        omega_full: float | None) -> np.ndarray:
+                        omega_full: float | None, shape: float = 1.0) -> np.ndarray:
     """Relative amplitude at instantaneous frequency ``omega`` (see :func:`frequency_sweep`)."""
+    if not shape > 0.0:
+        raise InputDataError(f"amplitude_shape must be positive, got {shape}")
     if omega_full is None or fraction == 1.0:
         return np.ones_like(omega)
     if not 0.0 < fraction <= 1.0 or omega_full <= omega_min:
@@ -248,7 +259,7 @@ def _amplitude_schedule(omega: np.ndarray, omega_min: float, fraction: float,
                              f"{omega_full} rad/s")
     position = np.log(np.clip(omega, omega_min, omega_full) / omega_min) / math.log(
         omega_full / omega_min)
-    return fraction + (1.0 - fraction) * position
+    return fraction + (1.0 - fraction) * position ** shape
 
 
 def _samples_ceil(duration: float, dt: float) -> int:

@@ -146,6 +146,28 @@ def test_sweep_shape_lead_in_and_final_frequency():
     assert abs(sweep[1]) < 12.0 * 0.4 * dt * 1.01 and abs(x[on[-1]]) < 12.0 * 15.0 * dt
 
 
+def test_sweep_amplitude_shape_delays_the_rise():
+    """With the same phase, the shaped sweep over the linear one is the ratio of their
+    schedules, (f + (1 - f) x^k) / (f + (1 - f) x) with x the log-frequency position: 1 at
+    the start and from full_amplitude_omega on, its minimum in between known in closed form."""
+    f, k = 0.15, 3.0
+    kw = dict(omega_min=0.1, omega_max=20.0, duration=150.0, amplitude=8.0,
+              long_period_cycles=1.0, low_frequency_fraction=f, full_amplitude_omega=1.2)
+    linear = inputs.frequency_sweep("lat", **kw)
+    shaped = inputs.frequency_sweep("lat", amplitude_shape=k, **kw)
+    assert shaped.attrs["amplitude_shape"] == k and linear.attrs["amplitude_shape"] == 1.0
+    a, b = linear["lat"].values, shaped["lat"].values
+    moving = np.abs(a) > 0.05
+    ratio = b[moving] / a[moving]
+    x = np.linspace(0.0, 1.0, 100001)
+    expected_min = np.min((f + (1 - f) * x ** k) / (f + (1 - f) * x))
+    assert ratio.min() == pytest.approx(expected_min, abs=2e-3)
+    assert ratio.max() == pytest.approx(1.0, abs=1e-9)
+    assert np.abs(b).max() == pytest.approx(8.0, rel=1e-3)
+    with pytest.raises(InputDataError, match="amplitude_shape"):
+        inputs.frequency_sweep("lat", amplitude_shape=0.0, **kw)
+
+
 def test_sweep_rejects_bad_parameters():
     with pytest.raises(InputDataError, match="axis"):
         inputs.frequency_sweep("yaw")
