@@ -463,9 +463,11 @@ def run_campaign(campaign: Campaign, output: str | Path | None = None, *, quiet:
                  fmu=None) -> xr.DataTree:
     """Fly every manoeuvre of ``campaign`` on the truth FMU; return (and write) the DataTree.
 
-    With ``output`` each manoeuvre is appended to the netCDF file atomically as it completes,
-    so a later divergence (raised as :class:`SimulationDiverged` naming the manoeuvre and
-    time) keeps the completed ones on disk.
+    With ``output`` the campaign is written to that netCDF file atomically, once, when every
+    manoeuvre has been flown; if one fails (e.g. :class:`SimulationDiverged`, naming the
+    manoeuvre and time) the ones completed before it are written before the error is
+    raised. (Appending each manoeuvre as it completed rewrote the whole file every time:
+    about 40 % of a quick campaign's run time.)
     """
     from sysid import io
 
@@ -489,22 +491,23 @@ def run_campaign(campaign: Campaign, output: str | Path | None = None, *, quiet:
         output = Path(output)
         if output.exists():
             output.unlink()
-        io.write_campaign(tree, output)
     sim = truth.CoSimulation(model, outputs=MEASUREMENTS)
     try:
         for m in campaign.maneuvers:
             ds = fly(sim, trim, loops, m, campaign, progress=progress)
             tree[f"maneuvers/{m.name}"] = xr.DataTree(ds)
-            if output is not None:
-                io.append_maneuver(output, m.name, ds)
+    except BaseException:
+        if output is not None:
+            io.write_campaign(tree, output)  # what was completed
+        raise
     finally:
         sim.close()
     summary = cross_control_summary(tree)
     if summary is not None:
         tree["cross_control_coherence"] = xr.DataTree(summary)
-        if output is not None:
-            io.update_campaign(output, "cross_control_coherence", summary)
         progress.message(format_cross_control(summary))
+    if output is not None:
+        io.write_campaign(tree, output)
     return tree
 
 
