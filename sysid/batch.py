@@ -240,10 +240,11 @@ def run_condition(spec: dict, folder: str, fail: str | None = None) -> dict:
     raises. Returns the record of :func:`run_condition_part`'s last part."""
     from sysid.workflow import PARTS
 
-    records: tuple[dict, ...] = ()
+    records: dict[str, dict] = {}
     for part in PARTS:
-        records = (run_condition_part(spec, folder, part, fail, *records),)
-    return records[0]
+        records[part] = run_condition_part(spec, folder, part, fail,
+                                           *(records[n] for n in PART_NEEDS[part]))
+    return records[PARTS[-1]]
 
 
 #: The parts of a study each part needs (``sysid.workflow.PARTS``): the two fits read only
@@ -750,6 +751,7 @@ def default_conditions(*, quick: bool = False) -> list[Condition]:
 
 __all__ = ["Condition", "BatchResult", "conditions", "load_conditions", "default_conditions",
            "run_batch", "run_condition", "run_condition_part", "condition_summary", "combine",
-           "plot_derivatives", "monte_carlo", "structure_for", "quick_campaign", "read_batch", "DEFAULT_SPEEDS",
+           "plot_derivatives", "monte_carlo", "structure_for", "quick_campaign", "read_batch",
+           "DEFAULT_SPEEDS",
            "FORWARD_FLIGHT_KT"]
 

@@ -300,9 +300,8 @@ def update_campaign(path: str | os.PathLike, group: str,
     each update sees the others' groups (the two fits of one study may run concurrently).
     Returns the campaign as written.
     """
-    target = _group_path(group)
     with campaign_lock(path):
-        return _update_campaign(path, target, dataset, group)
+        return _update_campaign(path, group, dataset)
 
 
 @contextlib.contextmanager
@@ -329,7 +328,8 @@ def campaign_lock(path: str | os.PathLike):
         os.close(descriptor)  # closing the descriptor releases the lock
 
 
-def _update_campaign(path, target: str, dataset, group: str) -> xr.DataTree:
+def _update_campaign(path, group: str, dataset) -> xr.DataTree:
+    target = _group_path(group)
     nodes = _nodes(read_campaign(path)) if Path(path).exists() else {"/": xr.Dataset()}
     if isinstance(dataset, xr.DataTree):
         nodes = {p: ds for p, ds in nodes.items()

@@ -261,9 +261,9 @@ def default_campaign(airspeed_kt: float = 0.0, *, noise: bool = True, seed: int 
     # put +18 dB at the bottom): every sweep here stays within -10/+9 dB over 0.1-20 rad/s
     # (collective at 0.5 reached +11.6 dB at 0.1 rad/s; tests/test_inputs.py).
     # Schedule: fraction at 0.1 rad/s, rad/s from which the amplitude is full, exponent of
-    # the rise in log-frequency (1 = linear). A cubic lateral rise (0.15, 1.2, 3) keeps the conditioned q/lon inside
-    # MUAD on 8 of 8 seeds (linear: 2 of 6), but the frequency-domain tau_L_lon then falls to
-    # 27 ms (guideline >= 50 ms), so it is not the default (issue 4 note).
+    # the rise in log-frequency (1 = linear). A cubic lateral rise (0.15, 1.2, 3) keeps the
+    # conditioned q/lon inside MUAD on 8 of 8 seeds (linear: 2 of 6), but the frequency-domain
+    # tau_L_lon then falls to 27 ms (guideline >= 50 ms), so it is not the default.
     schedule = {"lon": (0.1, 1.5, 1.0), "lat": (0.15, 1.5, 1.0), "col": (0.3, 1.5, 1.0),
                 "ped": (0.2, 1.5, 1.0)}
     base_width = {"lon": 0.5, "lat": 0.4, "col": 0.8, "ped": 0.8}

@@ -599,8 +599,8 @@ def _anchor_runaways(structure: LinearStructure, data: FitData, theta0, full: _C
             break
         start = dict(zip(structure.free_names, np.asarray(theta0, float)))
         anchored[anchor] = float(start[anchor])
-        progress.message(f"[sysid] identify: {', '.join(runaway)} ran away together (Cramer-Rao "
-                         f"bound over {RUNAWAY_CR_PERCENT:g} %, values over "
+        progress.message(f"[sysid] identify: {', '.join(runaway)} ran away together "
+                         f"(Cramer-Rao bound over {RUNAWAY_CR_PERCENT:g} %, values over "
                          f"{RUNAWAY_FACTOR:g}x their start values): "
                          f"{anchor} held at its start value {start[anchor]:.5g} and refitted")
         structure = structure.fix([anchor], start[anchor])
@@ -738,8 +738,8 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
     anchor_runaways : bool
         After the first fit, hold a damping derivative that ran away along an
         unidentifiable valley (:func:`runaway_parameters`) at its start value and refit
-        (repeated for up to three); recorded in the model's ``anchored_parameters`` attribute (JSON
-        ``{name: value}``). Default True.
+        (repeated for up to three); recorded in the model's ``anchored_parameters``
+        attribute (JSON ``{name: value}``). Default True.
     quiet, progress
         Per-stage lines on stderr unless quiet.
 
