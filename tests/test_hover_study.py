@@ -1,9 +1,10 @@
 """The paper's hover study on the truth FMU, end to end (the README's main command).
 
-One session-scoped run of :func:`sysid.workflow.run_study` with the default campaign
-(sensor noise and light turbulence on, fixed seed) feeds every check here; each assertion is
+One module-scoped run of :func:`sysid.workflow.run_study` with the default campaign
+(sensor noise and light turbulence on, fixed seed) feeds every check here but two, which fly
+the campaign's sweeps at other amplitudes to locate q/lon's miss of MUAD; each assertion is
 against independent truth: the truth FMU's own linearisation, its time responses, the MUAD
-envelopes and the guideline values of the literature. Takes about 90 s on one core.
+envelopes and the guideline values of the literature. Takes about 2 min on one core.
 """
 
 from __future__ import annotations
@@ -109,10 +110,73 @@ def test_composite_agrees_with_the_full_linearisation_within_muad(study):
         fractions[f"{out}/{inp}"] = float(result.fraction_inside)
     # p/lat, w/col and r/ped lie inside everywhere the coherence is >= 0.6. q/lon leaves the
     # gain bound at 0.40-0.44 rad/s, where the composite sits 8 dB above the linearisation:
-    # segment leakage near the unstable pitch-roll oscillation and, mostly, the truth model's
-    # nonlinearity at the flown amplitudes (README); inside over at least 95 % of its band.
+    # the truth model's nonlinearity at the flown amplitudes (the two tests below) plus
+    # segment leakage near the unstable pitch-roll oscillation and turbulence fed back by the
+    # holds (README); inside over at least 95 % of its band.
     assert all(fractions[p] == 1.0 for p in ("p/lat", "w/col", "r/ped")), fractions
     assert fractions["q/lon"] >= 0.95, fractions
+
+
+# -- Where q/lon's miss comes from: the truth model's nonlinearity (issue 4) -------------------
+def _fly_sweeps(fmu, scale: float, *, noise: bool, turbulence: float):
+    """The default hover campaign's eight sweeps at ``scale`` times their amplitude, and their
+    conditioned composite responses of u..r."""
+    import dataclasses
+
+    from sysid.frequency_response import frequency_response
+    from sysid.io import maneuvers
+    from sysid.maneuvers import default_campaign, run_campaign
+    from sysid.units import CONTROLS
+
+    campaign = default_campaign(0.0, noise=noise).select("sweep_*")
+    campaign = dataclasses.replace(
+        campaign, turbulence=turbulence,
+        maneuvers=[dataclasses.replace(m, amplitude=scale * m.amplitude)
+                   for m in campaign.maneuvers])
+    tree = run_campaign(campaign, quiet=True, fmu=fmu)
+    fr = frequency_response(maneuvers(tree, "sweep_*"), CONTROLS, ["u", "v", "w", "p", "q", "r"])
+    return tree, fr
+
+
+def _mismatch_to_linearisation(tree, fr, out, inp):
+    from sysid.models import frequency_response
+    from sysid.validate import mismatch
+
+    full = frequency_response(tree["linearization_full"].to_dataset(), fr.frequency.values)
+    return mismatch(full.sel(output=out, input=inp), fr.H.sel(output=out, input=inp))
+
+
+def test_q_lon_miss_near_the_pitch_roll_oscillation_shrinks_with_amplitude(truth_fmu):
+    """Noise-free and calm, so no estimator sees noise: if the composite's excess over the
+    linearisation at 0.3-0.5 rad/s were the estimator's (leakage, conditioning), it would not
+    depend on the amplitude flown. It falls from about 8 dB at the default amplitude to about
+    3 dB at a quarter of it: the truth model is nonlinear there at the flown amplitudes
+    (pitch up to 14 deg, speed 13 ft/s)."""
+    excess = {}
+    for scale in (1.0, 0.25):
+        tree, fr = _fly_sweeps(truth_fmu, scale, noise=False, turbulence=0.0)
+        error = _mismatch_to_linearisation(tree, fr, "q", "lon")
+        band = error.magnitude.sel(frequency=slice(0.3, 0.5))
+        excess[scale] = float(-band.min())          # model / data in dB: data above -> < 0
+    print(f"q/lon excess over the linearisation at 0.3-0.5 rad/s: {excess}")
+    assert excess[1.0] > 6.0                       # the effect is there to be explained
+    assert excess[0.25] < 0.5 * excess[1.0]
+
+
+def test_composite_agrees_within_muad_on_a_calm_half_amplitude_campaign(truth_fmu):
+    """Where the truth is close to linear (sweeps at half the default amplitude, no
+    turbulence; sensor noise on), every on-axis pair lies inside MUAD wherever its coherence is
+    at least 0.6. Measured on seeds 20261121 and 1-5: all four pairs inside everywhere, q/lon
+    3-7 dB high at 0.3-0.5 rad/s. (The coherence guideline is checked on the default campaign
+    above: at half amplitude the sensor noise takes w/col down to 0.76 near 1 rad/s.)"""
+    from sysid.validate import MUAD, check_envelope
+
+    tree, fr = _fly_sweeps(truth_fmu, 0.5, noise=True, turbulence=0.0)
+    for out, inp in ON_AXIS:
+        coherence = fr.partial_coherence.sel(output=out, input=inp)
+        result = check_envelope(_mismatch_to_linearisation(tree, fr, out, inp), MUAD,
+                                coherence=coherence)
+        assert float(result.fraction_inside) == 1.0, (out, inp, float(result.fraction_inside))
 
 
 # -- Frequency-domain identification (issue 5) ---------------------------------------------
