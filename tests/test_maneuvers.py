@@ -1,6 +1,7 @@
 """Campaign description, TOML round trip and hold-loop design (no FMU needed)."""
 
 import dataclasses
+import tomllib
 
 import control
 import numpy as np
@@ -8,8 +9,9 @@ import pytest
 import xarray as xr
 
 from sysid.errors import InputDataError
-from sysid.maneuvers import (Campaign, Maneuver, Stabilisation, closed_loop_modes,
-                             default_campaign, design_loops, preflight_check)
+from sysid.maneuvers import (LINEAR_REGIME_SCALE, Campaign, Maneuver, Stabilisation,
+                             closed_loop_modes, default_campaign, design_loops,
+                             linear_regime_campaign, preflight_check)
 from sysid.units import CONTROLS, STATES_6DOF
 
 
@@ -23,6 +25,27 @@ def test_default_campaign_mirrors_the_paper():
     assert c.noise and c.turbulence > 0                  # realistic levels on by default
     quiet = default_campaign(noise=False)
     assert not quiet.noise and quiet.turbulence == 0
+
+
+def test_linear_regime_campaign_is_the_default_sweeps_smaller_in_calm_air(capsys, tmp_path):
+    from sysid.cli import main
+
+    default = {m.name: m for m in default_campaign(seed=3).maneuvers}
+    calm = linear_regime_campaign(seed=3)
+    assert [m.name for m in calm.maneuvers] == [n for n in default if n.startswith("sweep_")]
+    for m in calm.maneuvers:
+        assert m.amplitude == pytest.approx(LINEAR_REGIME_SCALE[m.axis]
+                                            * default[m.name].amplitude)
+        assert dataclasses.replace(m, amplitude=default[m.name].amplitude) == default[m.name]
+    assert LINEAR_REGIME_SCALE["lon"] < 1 and LINEAR_REGIME_SCALE["lat"] < 1
+    assert calm.turbulence == 0 and calm.noise == default_campaign().noise and calm.seed == 3
+    assert main(["simulate", "--linear-regime", "--print-default", "-o", "x.nc"]) == 0
+    printed = tomllib.loads(capsys.readouterr().out)
+    assert Campaign.from_dict(printed) == linear_regime_campaign()
+    path = tmp_path / "c.toml"
+    path.write_text(default_campaign().to_toml())
+    assert main(["simulate", str(path), "--linear-regime", "-o", str(tmp_path / "x.nc")]) != 0
+    assert "--linear-regime applies to the built-in campaign only" in capsys.readouterr().err
 
 
 def test_toml_round_trip(tmp_path):

@@ -19,6 +19,9 @@ def register(subparsers) -> None:
                    help="airspeed in kt for the built-in campaign (default hover)")
     p.add_argument("--maneuvers", default="*", help="only manoeuvres matching this glob")
     p.add_argument("--no-noise", action="store_true", help="no sensor noise or turbulence")
+    p.add_argument("--linear-regime", action="store_true",
+                   help="the built-in campaign's sweeps for a check against the "
+                        "linearisation: cyclic and pedal at half amplitude, calm air")
     p.add_argument("--print-default", action="store_true",
                    help="print the built-in campaign as TOML and exit (a template to edit)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
@@ -27,15 +30,20 @@ def register(subparsers) -> None:
 
 def _simulate(args) -> int:
     from sysid.errors import InputDataError
-    from sysid.maneuvers import Campaign, default_campaign, run_campaign
+    from sysid.maneuvers import (Campaign, default_campaign, linear_regime_campaign,
+                                 run_campaign)
 
     if args.campaign:
-        if args.speed is not None:
-            raise InputDataError("--speed applies to the built-in campaign only; set "
-                                 "airspeed_kt in the campaign file instead")
+        for flag, given in (("--speed", args.speed is not None),
+                            ("--linear-regime", args.linear_regime)):
+            if given:
+                raise InputDataError(f"{flag} applies to the built-in campaign only; edit "
+                                     "the campaign file instead")
         campaign = Campaign.from_toml(args.campaign)
         if args.no_noise:
             campaign.noise, campaign.turbulence = {}, 0.0
+    elif args.linear_regime:
+        campaign = linear_regime_campaign(args.speed or 0.0, noise=not args.no_noise)
     else:
         campaign = default_campaign(args.speed or 0.0, noise=not args.no_noise)
     if args.print_default:
