@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import sys
 import tempfile
@@ -17,7 +18,10 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None):
     """Yield a temporary path next to ``path``; rename it onto ``path`` only on success.
 
     Whatever is written to the yielded path appears at ``path`` all at once or not at all:
-    if the block raises, the temporary file is removed and ``path`` is left untouched.
+    if the block raises, the temporary file is removed and ``path`` is left untouched. The
+    file gets the permissions a plain ``open(path, "w")`` would give it: those of the file it
+    replaces, else ``0o666`` less the umask (``mkstemp`` alone makes it owner-only, so a
+    shared results folder would hold campaign files nobody else could read).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -27,10 +31,28 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None):
     tmp = Path(tmp)
     try:
         yield tmp
+        os.chmod(tmp, _new_file_mode(path))
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def _new_file_mode(path: Path) -> int:
+    """Permission bits ``open(path, "w")`` would leave on ``path``."""
+    try:
+        return path.stat().st_mode & 0o7777
+    except FileNotFoundError:
+        return 0o666 & ~_umask()
+
+
+@functools.cache
+def _umask() -> int:
+    # Reading the umask means setting it; done once per process, before any worker threads
+    # of ours write files, so no other file is created under the temporary value.
+    mask = os.umask(0o077)
+    os.umask(mask)
+    return mask
 
 
 def rng(seed: int | None) -> np.random.Generator:

@@ -92,3 +92,25 @@ def test_cli_reports_user_errors_on_one_line(capsys, monkeypatch):
     assert main(["boom"]) == 1
     err = capsys.readouterr().err.strip()
     assert err == "sysid boom: error: channel 'q' missing in record sweep_lon_1"
+
+
+def test_atomic_path_gives_the_permissions_open_would(tmp_path):
+    """mkstemp makes owner-only files; a written campaign or FMU must be readable like any
+    other file the user writes (0o666 less the umask), and a rewrite keeps the old mode."""
+    import os
+    import stat
+
+    from sysid.util import _umask
+
+    fresh = tmp_path / "fresh.nc"
+    with atomic_path(fresh) as tmp:
+        tmp.write_text("x")
+    assert stat.S_IMODE(fresh.stat().st_mode) == 0o666 & ~_umask()
+    with open(tmp_path / "plain.nc", "w") as f:
+        f.write("x")
+    assert stat.S_IMODE(fresh.stat().st_mode) == stat.S_IMODE(
+        (tmp_path / "plain.nc").stat().st_mode)
+    os.chmod(fresh, 0o640)
+    with atomic_path(fresh) as tmp:
+        tmp.write_text("y")
+    assert stat.S_IMODE(fresh.stat().st_mode) == 0o640 and fresh.read_text() == "y"
