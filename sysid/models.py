@@ -99,6 +99,11 @@ class Parameter:
     lower, upper : float
         Bounds of a free parameter (``-inf``/``inf`` for none; delays default to
         :data:`DELAY_BOUNDS`).
+    keep : bool
+        Never removed by model reduction (:mod:`sysid.identify.reduction`): the structure's
+        author knows the effect exists, e.g. an on-axis delay standing for the actuators and
+        rotor, whose Cramer-Rao bound sits near the guideline only because it trades off
+        against a damping derivative.
     """
 
     name: str
@@ -109,6 +114,7 @@ class Parameter:
     free: bool = True
     lower: float = -math.inf
     upper: float = math.inf
+    keep: bool = False
 
     def replace(self, **changes) -> "Parameter":
         return dataclasses.replace(self, **changes)
@@ -230,6 +236,12 @@ class LinearStructure:
     def free_names(self) -> tuple[str, ...]:
         """Names of the free parameters, in the order of ``theta``."""
         return tuple(self.parameters[k].name for k in self.free_index)
+
+    @property
+    def kept_names(self) -> tuple[str, ...]:
+        """Free parameters that model reduction must not remove (``keep = true``)."""
+        return tuple(self.parameters[k].name for k in self.free_index
+                     if self.parameters[k].keep)
 
     @property
     def theta0(self) -> np.ndarray:
@@ -656,6 +668,7 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
 
         [delays]                           # per B entry ("row,input") or per input ("input")
         tau_L_lon = { entry = "p,lon", value = 0.1 }             # bounds default 0 .. 0.3 s
+        tau_L_lat = { entry = "p,lat", value = 0.1, keep = true }  # never removed by reduction
         tau_ped = { entry = "ped", value = 0.05, free = false }
 
     A/B entries on the 6-DoF force rows get derivative names (``"q,u"`` -> ``M_u``); other
@@ -733,29 +746,38 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
         for key, item in dict(spec.get(matrix, {})).items():
             nm, row, col = _parse_entry_key(key, matrix, states)
             item = {"value": item} if not isinstance(item, Mapping) else dict(item)
-            bad = set(item) - {"value", "free", "lower", "upper", "name"}
-            if bad:
-                raise InputDataError(f"structure {source}: [{matrix}] {key}: unknown fields "
-                                     f"{sorted(bad)} (value, free, lower, upper, name)")
+            _check_fields(item, {"value", "free", "lower", "upper", "name", "keep"},
+                          f"structure {source}: [{matrix}] {key}")
             params.append(Parameter(str(item.get("name", nm)), matrix, row, col,
                                     float(item.get("value", 0.0)), bool(item.get("free", True)),
                                     float(item.get("lower", -math.inf)),
-                                    float(item.get("upper", math.inf))))
+                                    float(item.get("upper", math.inf)),
+                                    bool(item.get("keep", False))))
     for nm, item in dict(spec.get("delays", {})).items():
         item = dict(item) if isinstance(item, Mapping) else {"entry": item}
         if "entry" not in item:
             raise InputDataError(f"structure {source}: [delays] {nm}: missing 'entry' "
                                  f"('row,input' or 'input')")
+        _check_fields(item, {"entry", "value", "free", "lower", "upper", "keep"},
+                      f"structure {source}: [delays] {nm}")
         row, col = _parse_delay_entry(item["entry"], nm)
         params.append(Parameter(str(nm), "delay", row, col, float(item.get("value", 0.05)),
                                 bool(item.get("free", True)),
                                 float(item.get("lower", DELAY_BOUNDS[0])),
-                                float(item.get("upper", DELAY_BOUNDS[1]))))
+                                float(item.get("upper", DELAY_BOUNDS[1])),
+                                bool(item.get("keep", False))))
     return LinearStructure(states=states, inputs=inputs, outputs=outputs, A0=A0,
                            parameters=params,
                            trim_input={k: v for k, v in trim_all.items() if k in inputs},
                            trim_output={k: v for k, v in trim_all.items() if k in outputs},
                            name=name, description=str(spec.get("description", "")), attrs=attrs)
+
+
+def _check_fields(item: Mapping, allowed: set[str], where: str) -> None:
+    bad = set(item) - allowed
+    if bad:
+        raise InputDataError(f"{where}: unknown fields {sorted(bad)} "
+                             f"({', '.join(sorted(allowed))})")
 
 
 def builtin_structures() -> dict[str, Path]:

@@ -234,6 +234,21 @@ def test_reduction_removes_spurious_parameters_and_keeps_true_ones():
     assert all(abs(v) <= 3.0 for v in z.values()), z
 
 
+def test_reduction_never_removes_a_kept_parameter():
+    """``keep = true`` in a structure: the reduction leaves that parameter free even when it
+    breaks the guidelines and costs nothing to remove (a spurious derivative here); the
+    others are still removed."""
+    st = truth_structure(extra_free=SPURIOUS)
+    kept = st.replace_parameters({"L_q": {"keep": True}})
+    fr = analytic_response(st, noise=0.05, seed=3)
+    result = identify_frequency_domain(fr, kept, reduce=True)
+    assert set(result.reduction.removed) == set(SPURIOUS) - {"L_q"}
+    assert "L_q" in result.structure.free_names
+    assert "L_q" not in {step.parameter for step in result.reduction.steps}
+    assert result.statistics.cramer_rao_percent[
+        result.statistics.names.index("L_q")] > 20.0       # it does break the guideline
+
+
 def test_parameter_without_influence_is_reported_unidentifiable():
     st = truth_structure()
     fr = analytic_response(st)

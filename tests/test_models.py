@@ -207,6 +207,24 @@ def test_toml_structure(tmp_path):
         load_structure(tmp_path / "missing.toml")
 
 
+def test_toml_keep_marks_what_model_reduction_must_not_remove(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text(TOML.replace('tau_M_lon = { entry = "q,lon", value = 0.08 }',
+                                 'tau_M_lon = { entry = "q,lon", value = 0.08, keep = true }')
+                    .replace('"q,u" = 0.5', '"q,u" = { value = 0.5, keep = true }'))
+    st = load_structure(path, trim={"theta": 5.0})
+    assert st.kept_names == ("M_u", "tau_M_lon")
+    assert st.fix(["M_u"]).kept_names == ("tau_M_lon",)   # only free parameters count
+    hover = load_structure("hover_6dof", trim={"theta": 6.76, "phi": -2.87})
+    assert hover.kept_names == ("tau_M_lon", "tau_L_lat")  # the on-axis delays
+    for section, line in (("delays", 'tau_M_lon = { entry = "q,lon", value = 0.08 }'),
+                          ("A", "M_q = { value = -3.0, lower = -20.0, upper = 0.0 }")):
+        bad = tmp_path / f"bad_{section}.toml"
+        bad.write_text(TOML.replace(line, line[:-2] + ", kep = true }"))
+        with pytest.raises(InputDataError, match=rf"\[{section}\].*unknown fields \['kep'\]"):
+            load_structure(bad, trim={"theta": 5.0})
+
+
 def test_builtin_hover_structure():
     assert {"hover_6dof", "paper_hover"} <= set(builtin_structures())
     paper = load_structure("paper_hover", trim={"theta": 6.76, "phi": -2.87})

@@ -727,7 +727,7 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
     reduce : bool
         Run the stepwise model reduction (:mod:`sysid.identify.reduction`) with
         ``cr_max`` (20 %), ``insensitivity_max`` (10 %), ``max_cost_increase`` (2 J_ave)
-        and never removing ``protected``.
+        and never removing ``protected`` or the structure's ``keep`` parameters.
     method : {"trf", "lm", "dogbox"}
         :func:`scipy.optimize.least_squares` method (default "trf", honours delay bounds).
     tol : float
@@ -800,7 +800,7 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
             reduction = stepwise_reduction(
                 refit, FitOutcome(full.J_ave, full.statistics, full), cr_max=cr_max,
                 insensitivity_max=insensitivity_max, max_cost_increase=max_cost_increase,
-                protected=protected, progress=progress)
+                protected=(*protected, *structure.kept_names), progress=progress)
         final = reduction.final.payload
     # Restart from the perturbed solution to confirm the minimum.
     theta_r = perturbed_start(final.theta, final.structure, seed, restart_fraction)

@@ -815,7 +815,7 @@ def identify_time_domain(records, structure: LinearStructure, *,
         Stepwise model reduction (:func:`sysid.identify.reduction.stepwise_reduction`) with
         ``cr_max`` (20 %), ``insensitivity_max`` (10 %) and ``max_cost_increase``
         (:data:`MAX_COST_INCREASE`, in units of the negative log-likelihood), never removing
-        ``protected``.
+        ``protected`` or the structure's ``keep`` parameters.
     tol : float
         ``ftol = xtol = gtol`` of :func:`scipy.optimize.least_squares` (``"trf"``).
     max_nfev : int, optional
@@ -883,7 +883,7 @@ def identify_time_domain(records, structure: LinearStructure, *,
             reduction = stepwise_reduction(
                 refit, FitOutcome(full.cost, full.statistics, full), cr_max=cr_max,
                 insensitivity_max=insensitivity_max, max_cost_increase=max_cost_increase,
-                protected=protected, progress=progress)
+                protected=(*protected, *structure.kept_names), progress=progress)
         final = reduction.final.payload
     restart = {}
     if restart_fraction > 0:
