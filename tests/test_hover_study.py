@@ -192,8 +192,7 @@ def test_linear_regime_campaign_agrees_with_the_full_linearisation_within_muad(t
     """Issue 4's check where the truth is close to linear (sysid.maneuvers.
     linear_regime_campaign: cyclic and pedal sweeps at half amplitude, calm air, sensor noise
     on): every on-axis pair has coherence >= 0.8 over 1-10 rad/s and lies inside MUAD
-    wherever its coherence is >= 0.6. q/lon is still 3-7 dB high at 0.3-0.5 rad/s, inside
-    the bound there."""
+    wherever its coherence is >= 0.6. q/lon is still 3-7 dB high at 0.3-0.5 rad/s."""
     _check_linear_regime_campaign(truth_fmu, 20261121)
 
 
