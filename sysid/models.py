@@ -50,6 +50,7 @@ __all__ = [
     "six_dof_structure",
     "structure_from_dict",
     "load_structure",
+    "structure_path",
     "builtin_structures",
     "model_from_dataset",
     "model_matrices",
@@ -785,12 +786,8 @@ def builtin_structures() -> dict[str, Path]:
     return {p.stem: p for p in sorted(STRUCTURES_DIR.glob("*.toml"))}
 
 
-def load_structure(source: str | Path, *, trim: Mapping[str, float] | None = None
-                   ) -> LinearStructure:
-    """A structure from a TOML file, or a built-in one by name (e.g. ``"hover_6dof"``).
-
-    See :func:`structure_from_dict` for the format and the meaning of ``trim``.
-    """
+def structure_path(source: str | Path) -> Path:
+    """The TOML file of a structure: ``source`` itself, or the built-in one of that name."""
     path = Path(source)
     builtin = builtin_structures()
     if not path.exists() and str(source) in builtin:
@@ -798,6 +795,16 @@ def load_structure(source: str | Path, *, trim: Mapping[str, float] | None = Non
     if not path.exists():
         raise InputDataError(f"structure file {source} not found (built-in structures: "
                              f"{sorted(builtin)})")
+    return path
+
+
+def load_structure(source: str | Path, *, trim: Mapping[str, float] | None = None
+                   ) -> LinearStructure:
+    """A structure from a TOML file, or a built-in one by name (e.g. ``"hover_6dof"``).
+
+    See :func:`structure_from_dict` for the format and the meaning of ``trim``.
+    """
+    path = structure_path(source)
     try:
         spec = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:

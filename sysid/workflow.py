@@ -145,6 +145,7 @@ class _Study:
     def __init__(self, out_dir: str | Path, settings: StudySettings, *, quiet: bool):
         from sysid import fmu
         from sysid.maneuvers import Campaign, default_campaign
+        from sysid.models import structure_path
 
         self.settings = settings
         self.out = Path(out_dir)
@@ -162,11 +163,12 @@ class _Study:
         self.key_campaign = _key("campaign", self.campaign.to_toml(), self.fmu_path.name,
                                  sysid.__version__)
         self.key_fr = _key("fr", self.key_campaign, settings.sweep_maneuvers)
-        self.key_fd = _key("fd", self.key_fr, settings.structure, settings.fd_coherence_min)
+        # The structure enters by its text, so that editing its file re-runs the fits.
+        structure = (settings.structure, structure_path(settings.structure).read_text())
+        self.key_fd = _key("fd", self.key_fr, structure, settings.fd_coherence_min)
         # The time-domain fit starts from the linearisation, not from the frequency-domain
         # result, so that the two identifications are independent.
-        self.key_td = _key("td", self.key_campaign, settings.structure,
-                           settings.time_domain_maneuvers)
+        self.key_td = _key("td", self.key_campaign, structure, settings.time_domain_maneuvers)
         self.key_models = _key(self.key_fd, self.key_td)
 
     def stage(self, name: str, group: str, key: str, work) -> None:

@@ -56,6 +56,22 @@ def test_rerun_of_finished_parts_recomputes_nothing(study):
         run_study(study["dir"], StudySettings(), quiet=True, parts=("fit",))
 
 
+def test_editing_the_structure_file_invalidates_the_fits(tmp_path, truth_fmu):
+    """The fits are cached by the structure's text, not its name: an edited structure file
+    re-runs both identifications, while the campaign and the spectra stay cached."""
+    from sysid.models import structure_path
+    from sysid.workflow import StudySettings, _Study
+
+    toml = tmp_path / "mine.toml"
+    toml.write_text(structure_path("hover_6dof").read_text())
+    before = _Study(tmp_path / "study", StudySettings(structure=str(toml)), quiet=True)
+    toml.write_text(toml.read_text().replace("N_r = { value = -0.3185 }",
+                                             "N_r = { value = -0.5 }"))
+    after = _Study(tmp_path / "study", StudySettings(structure=str(toml)), quiet=True)
+    assert (before.key_campaign, before.key_fr) == (after.key_campaign, after.key_fr)
+    assert before.key_fd != after.key_fd and before.key_td != after.key_td
+
+
 # -- Flight-test campaign (issue 3) -------------------------------------------------------
 def test_sweeps_stay_near_trim_and_move_every_control(study):
     tree = study["tree"]
