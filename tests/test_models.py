@@ -216,7 +216,8 @@ def test_toml_keep_marks_what_model_reduction_must_not_remove(tmp_path):
     assert st.kept_names == ("M_u", "tau_M_lon")
     assert st.fix(["M_u"]).kept_names == ("tau_M_lon",)   # only free parameters count
     hover = load_structure("hover_6dof", trim={"theta": 6.76, "phi": -2.87})
-    assert hover.kept_names == ("tau_M_lon", "tau_L_lat")  # the on-axis delays
+    # the on-axis delays: the cyclic ones in the p and q rows, the pedal's on the whole input
+    assert hover.kept_names == ("tau_M_lon", "tau_L_lat", "tau_ped")
     for section, line in (("delays", 'tau_M_lon = { entry = "q,lon", value = 0.08 }'),
                           ("A", "M_q = { value = -3.0, lower = -20.0, upper = 0.0 }")):
         bad = tmp_path / f"bad_{section}.toml"
@@ -234,7 +235,9 @@ def test_builtin_hover_structure():
     assert {"tau_L_lon", "tau_M_lat", "tau_M_lon", "tau_L_lat", "M_q", "L_p",
             "N_ped"} <= set(st.free_names)
     tau = st.matrices()[4]      # on- and off-axis cyclic delays in the p and q rows
-    assert np.count_nonzero(tau) == 4 and np.all(tau[3:5, 0:2] > 0)
+    assert np.count_nonzero(tau[:, 0:2]) == 4 and np.all(tau[3:5, 0:2] > 0)
+    assert np.count_nonzero(tau[:, 2]) == 0  # collective: none
+    assert np.all(tau[:, 3] > 0)             # pedal: one delay on every entry of its column
     assert (st.attrs["fit_omega_min"], st.attrs["fit_omega_max"]) == (0.1, 8.0)
     kin = rigid_body_terms(theta0=6.76, phi0=-2.87).values
     assert st.A0 is not None and np.array_equal(st.A0, kin)
