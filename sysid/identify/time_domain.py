@@ -109,6 +109,10 @@ MAX_COST_INCREASE = 0.5 * 10.827566170662733
 #: Relative floor of the noise variances (times the variance of the measured perturbation):
 #: keeps the weights finite on noise-free data.
 R_FLOOR = 1e-14
+#: Relaxation: cost evaluations allowed per weighted solve while R still changes by more than
+#: EARLY_R_CHANGE (relative) between outer iterations (see ``_converge``).
+EARLY_NFEV = 3
+EARLY_R_CHANGE = 0.02
 #: First seconds averaged as trim for a channel without a ``trim_<channel>`` attribute.
 TRIM_WINDOW = 1.0
 #: Simulated (whitened) values beyond this count as a diverged trial model.
@@ -607,17 +611,27 @@ def _converge(structure: LinearStructure, records: list[TimeRecord], outputs, th
         R0 = _noise_variance(model.evaluate(theta).errors, floor)
     R = np.asarray(R0, float).copy()
     history, nfev, cost, outer = [], 0, math.inf, 0
+    # While R is still far from its fixed point, solving each weighted problem to full
+    # accuracy is wasted: the next R moves the optimum again. Those early solves stop after
+    # a few Gauss-Newton steps; once R has settled to EARLY_R_CHANGE, every solve converges
+    # fully, so the end point is the relaxation's usual fixed point.
+    early = True
     for outer in range(1, max_outer + 1):
         model.set_sigma(np.sqrt(R))
         if len(theta):
-            res = _solve(model, theta, tol=tol, max_nfev=max_nfev)
+            limit = max_nfev
+            if early and outer < max_outer:
+                limit = EARLY_NFEV if max_nfev is None else min(max_nfev, EARLY_NFEV)
+            res = _solve(model, theta, tol=tol, max_nfev=limit)
             theta, nfev = res.x, nfev + res.nfev
         ev = model.evaluate(theta)
         R_new = _noise_variance(ev.errors, floor)
         change = float(np.max(np.abs(R_new / R - 1.0)))
         new_cost = _likelihood(ev.errors, R_new)
         history.append((new_cost, change))
-        done = change < r_tol and abs(new_cost - cost) <= cost_tol * max(abs(new_cost), 1.0)
+        done = (not early and change < r_tol
+                and abs(new_cost - cost) <= cost_tol * max(abs(new_cost), 1.0))
+        early = early and change >= EARLY_R_CHANGE
         R, cost = R_new, new_cost
         if done:
             break
