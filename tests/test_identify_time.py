@@ -165,6 +165,27 @@ def test_noisy_records_within_three_cramer_rao_bounds(clean_records):
     assert "CR %" in result.table() and "tau_L_lon" in result.table()
 
 
+def test_capped_early_solves_reach_the_fully_converged_relaxation(clean_records, monkeypatch):
+    """The relaxation caps its weighted solves while R still moves (EARLY_NFEV); the end point
+    must be the maximum-likelihood fixed point that fully converged solves reach: the same
+    parameters to well inside their Cramer-Rao bounds, and R equal to the mean squared
+    residuals at that point."""
+    import sysid.identify.time_domain as td
+
+    st = truth_structure()
+    records = add_noise(clean_records, 1.0, seed=2)
+    start = _perturbed_start(st, 5)
+    capped = identify_time_domain(records, st, start=start, reduce=False)
+    monkeypatch.setattr(td, "EARLY_NFEV", 10_000)
+    full = identify_time_domain(records, st, start=start, reduce=False)
+    z = (capped.theta - full.theta) / full.statistics.cramer_rao
+    assert np.max(np.abs(z)) < 0.05, dict(zip(full.statistics.names, np.round(z, 3)))
+    assert capped.cost == pytest.approx(full.cost, rel=1e-6)
+    rms = np.array([capped.output_rms_error[o] for o in capped.noise_variance])
+    R = np.array(list(capped.noise_variance.values()))
+    np.testing.assert_allclose(R, rms ** 2, rtol=2e-3)
+
+
 def test_model_dataset_is_simulatable_and_reproduces_the_fit(clean_records):
     from sysid.models import simulate
 
