@@ -37,6 +37,7 @@ import fnmatch
 import json
 import os
 import re
+import shutil
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -54,6 +55,8 @@ __all__ = [
     "write_campaign",
     "read_campaign",
     "update_campaign",
+    "group_attrs",
+    "set_group_attrs",
     "append_maneuver",
     "list_maneuvers",
     "maneuvers",
@@ -289,8 +292,8 @@ def _group_path(group: str) -> str:
 
 
 def update_campaign(path: str | os.PathLike, group: str,
-                    dataset: xr.Dataset | xr.DataTree) -> xr.DataTree:
-    """Insert or replace one group of the campaign at ``path`` and rewrite it atomically.
+                    dataset: xr.Dataset | xr.DataTree) -> None:
+    """Insert or replace one group of the campaign at ``path``, atomically.
 
     ``group`` is a path such as ``"frequency_response"`` or ``"models/frequency_domain"``;
     a missing file starts an empty campaign. A :class:`~xarray.Dataset` replaces that group's
@@ -298,10 +301,111 @@ def update_campaign(path: str | os.PathLike, group: str,
     does not drop the manoeuvres); a :class:`~xarray.DataTree` replaces the whole sub-tree.
     Processes updating the same file at once are serialised by :func:`campaign_lock`, so
     each update sees the others' groups (the two fits of one study may run concurrently).
-    Returns the campaign as written.
+
+    A group that is new to the file, under parents that hold no variables, is appended to a
+    copy of the file; anything else rereads and rewrites the whole campaign. Both end in
+    the same file contents; the append is what keeps a study's many small updates cheap (a
+    full rewrite of a 22 MB hover campaign takes about 4.6 s, the append well under 0.1 s).
     """
     with campaign_lock(path):
-        return _update_campaign(path, group, dataset)
+        if not _append_new_groups(path, _group_path(group), dataset):
+            _update_campaign(path, group, dataset)
+
+
+def group_attrs(path: str | os.PathLike, group: str) -> dict | None:
+    """The attributes of one group of the campaign at ``path``, read without loading the rest.
+
+    ``None`` when the file does not exist, cannot be read as netCDF-4, or has no such group.
+    """
+    import netCDF4
+
+    if not Path(path).is_file():
+        return None
+    try:
+        with netCDF4.Dataset(path, "r") as nc:
+            node = _nc_group(nc, _group_path(group))
+            if node is None:
+                return None
+            return _decode_attrs({k: node.getncattr(k) for k in node.ncattrs()})
+    except (OSError, RuntimeError, ValueError):
+        return None
+
+
+def set_group_attrs(path: str | os.PathLike, group: str, attrs: Mapping) -> None:
+    """Add or change attributes of an existing group of the campaign at ``path``.
+
+    The other attributes, the group's variables and every other group are kept. Atomic and
+    serialised like :func:`update_campaign`, without rewriting the campaign's data.
+    """
+    import netCDF4
+
+    target = _group_path(group)
+    with campaign_lock(path):
+        if group_attrs(path, target) is None:
+            raise InputDataError(f"campaign {path} has no group {target!r} to set "
+                                 f"attributes {sorted(attrs)} on")
+        with atomic_path(path, suffix=".nc") as tmp:
+            shutil.copyfile(path, tmp)
+            with netCDF4.Dataset(tmp, "a") as nc:
+                node = _nc_group(nc, target)
+                merged = _decode_attrs({k: node.getncattr(k) for k in node.ncattrs()})
+                merged.update(attrs)
+                encoded = _encode_attrs(merged, f"group {target}")
+                for key in node.ncattrs():
+                    node.delncattr(key)
+                node.setncatts(encoded)
+
+
+def _nc_group(nc, target: str):
+    """The netCDF4 group at ``target`` ("/a/b"), or None."""
+    node = nc
+    for part in target.strip("/").split("/"):
+        if not part:
+            continue
+        if part not in node.groups:
+            return None
+        node = node.groups[part]
+    return node
+
+
+def _append_new_groups(path, target: str, dataset) -> bool:
+    """Append ``dataset`` as the new group(s) at ``target`` to a copy of the campaign and
+    rename it into place. False (nothing done) unless the file exists, none of the new groups
+    does, and no existing ancestor holds variables or dimensions the new groups could
+    inherit -- the cases where appending gives exactly what a full rewrite would."""
+    import netCDF4
+
+    if isinstance(dataset, xr.DataTree):
+        new = {}
+        for node in dataset.subtree:
+            rel = node.relative_to(dataset)
+            new[target if rel == "." else f"{target}/{rel}"] = node.to_dataset(inherit=False)
+    elif isinstance(dataset, xr.Dataset):
+        new = {target: dataset}
+    else:
+        return False
+    if not Path(path).is_file():
+        return False
+    try:
+        with netCDF4.Dataset(path, "r") as nc:
+            for group in new:
+                if _nc_group(nc, group) is not None:
+                    return False
+                parts = group.strip("/").split("/")
+                for k in range(len(parts)):
+                    parent = _nc_group(nc, "/" + "/".join(parts[:k]))
+                    if parent is not None and (parent.variables or parent.dimensions):
+                        return False
+    except (OSError, RuntimeError, ValueError):
+        return False  # not readable here: the full path reports it
+    # Encode (and check) everything before the file is touched.
+    encoded = {g: encode_complex(ds) for g, ds in new.items()}
+    _tree_from_nodes({g: ds for g, ds in encoded.items()}, f"in {path} (group {target})")
+    with atomic_path(path, suffix=".nc") as tmp:
+        shutil.copyfile(path, tmp)
+        for group, ds in encoded.items():
+            ds.to_netcdf(tmp, mode="a", group=group, engine="netcdf4")
+    return True
 
 
 @contextlib.contextmanager
@@ -328,7 +432,7 @@ def campaign_lock(path: str | os.PathLike):
         os.close(descriptor)  # closing the descriptor releases the lock
 
 
-def _update_campaign(path, group: str, dataset) -> xr.DataTree:
+def _update_campaign(path, group: str, dataset) -> None:
     target = _group_path(group)
     nodes = _nodes(read_campaign(path)) if Path(path).exists() else {"/": xr.Dataset()}
     if isinstance(dataset, xr.DataTree):
@@ -344,15 +448,14 @@ def _update_campaign(path, group: str, dataset) -> xr.DataTree:
                              f"got {type(dataset).__name__}")
     tree = _tree_from_nodes(nodes, f"in {path} (group {target})")
     write_campaign(tree, path)
-    return tree
 
 
-def append_maneuver(path: str | os.PathLike, name: str, dataset: xr.Dataset) -> xr.DataTree:
+def append_maneuver(path: str | os.PathLike, name: str, dataset: xr.Dataset) -> None:
     """Add (or replace) manoeuvre ``name`` in the campaign at ``path``: group
-    ``/maneuvers/<name>``. Returns the campaign as written."""
+    ``/maneuvers/<name>``."""
     if not name or "/" in name:
         raise InputDataError(f"manoeuvre name {name!r} must be non-empty and contain no '/'")
-    return update_campaign(path, f"maneuvers/{name}", dataset)
+    update_campaign(path, f"maneuvers/{name}", dataset)
 
 
 def _natural_key(name: str):

@@ -74,30 +74,19 @@ def _key(*parts) -> str:
 
 
 def _group_key(path: Path, group: str) -> str | None:
-    from sysid.io import read_campaign
+    """The cache key stamped on ``group``; None when the file or the group is missing or the
+    file is unreadable (the stage then runs and rewrites it)."""
+    from sysid.io import group_attrs
 
-    if not path.exists():
-        return None
-    try:
-        tree = read_campaign(path)
-    except SysidError:
-        return None
-    try:  # ``in`` only sees direct children; nested paths need a lookup
-        node = tree[group]
-    except KeyError:
-        return None
-    return node.attrs.get("workflow_key")
+    attrs = group_attrs(path, group)
+    return None if attrs is None else attrs.get("workflow_key")
 
 
 def _stamp(path: Path, group: str, key: str, elapsed_s: float) -> None:
-    from sysid.io import read_campaign, update_campaign
+    from sysid.io import set_group_attrs
 
-    tree = read_campaign(path)
-    node = tree[group]
-    ds = node.to_dataset(inherit=False)
-    ds.attrs["workflow_key"] = key
-    ds.attrs["workflow_elapsed_s"] = round(float(elapsed_s), 2)
-    update_campaign(path, group, ds)
+    set_group_attrs(path, group, {"workflow_key": key,
+                                  "workflow_elapsed_s": round(float(elapsed_s), 2)})
 
 
 def _cli(*args: str) -> None:

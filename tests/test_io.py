@@ -142,6 +142,73 @@ def test_update_campaign_insert_replace_and_keep_children(tmp_path):
     assert io.list_maneuvers(io.read_campaign(path)) == ["only"]
 
 
+def test_appending_new_groups_gives_the_same_campaign_as_a_full_rewrite(tmp_path, monkeypatch):
+    """New groups are appended to a copy of the file instead of rewriting the campaign; the
+    file read back must be what writing the whole combined tree gives."""
+    path = tmp_path / "c.nc"
+    io.write_campaign(_campaign(), path)
+    g = np.random.default_rng(4)
+    model = xr.Dataset(
+        {"A": (("state_dot", "state"), g.standard_normal((2, 2)) + 1j),
+         "free": ("parameter", np.array([True, False]))},
+        coords={"state": ["u", "q"], "state_dot": ["u", "q"], "parameter": ["Xu", "Mq"]},
+        attrs={"method": "time_domain", "flag": True, "names": ["a", "b"], "none": None})
+    sub = xr.DataTree.from_dict({"2311_col": xr.Dataset({"j_rms": ("source", [1.0, 2.0])}),
+                                 "2311_lon": xr.Dataset(attrs={"note": "empty"})})
+
+    def no_rewrite(*args, **kwargs):
+        raise AssertionError("a new group must not rewrite the campaign")
+
+    monkeypatch.setattr(io, "_update_campaign", no_rewrite)
+    io.update_campaign(path, "models/time_domain", model)
+    io.update_campaign(path, "verification", sub)
+    io.append_maneuver(path, "2311_ped_1", _time_history("2311_ped_1", seed=9))
+    expected = _campaign()
+    expected["models/time_domain"] = xr.DataTree(model)
+    expected["verification"] = sub
+    expected["maneuvers/2311_ped_1"] = xr.DataTree(_time_history("2311_ped_1", seed=9))
+    reference = tmp_path / "reference.nc"
+    io.write_campaign(expected, reference)
+    xr.testing.assert_identical(io.read_campaign(path), io.read_campaign(reference))
+    assert io.read_campaign(path)["models/time_domain"].attrs["names"] == ["a", "b"]
+    # replacing an existing group still works (through the full rewrite)
+    monkeypatch.undo()
+    io.update_campaign(path, "models/time_domain", xr.Dataset({"c": 1.0}))
+    assert list(io.read_campaign(path)["models/time_domain"].data_vars) == ["c"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.nc", "reference.nc"]
+
+
+def test_group_attributes_are_read_and_set_without_touching_the_data(tmp_path):
+    path = tmp_path / "c.nc"
+    assert io.group_attrs(path, "frequency_response") is None  # no file
+    io.write_campaign(_campaign(), path)
+    assert io.group_attrs(path, "models/missing") is None
+    attrs = io.group_attrs(path, "frequency_response")
+    assert attrs["options"] == {"C_eps": 0.1, "names": ["a", "b"]} and attrs["z"] == 1 - 2j
+    before = io.read_campaign(path)
+    io.set_group_attrs(path, "models/deep/nested/group", {"workflow_key": "abc", "ok": True})
+    after = io.read_campaign(path)
+    node = after["models/deep/nested/group"]
+    assert node.attrs == {"workflow_key": "abc", "ok": True}
+    xr.testing.assert_identical(node.to_dataset().drop_attrs(),
+                                before["models/deep/nested/group"].to_dataset().drop_attrs())
+    io.set_group_attrs(path, "frequency_response", {"overlap": 0.5})
+    fr = io.read_campaign(path)["frequency_response"]
+    assert fr.attrs["overlap"] == 0.5 and fr.attrs["pair"] == (1, 2)
+    xr.testing.assert_identical(fr.to_dataset(), after["frequency_response"].to_dataset()
+                                .assign_attrs(overlap=0.5))
+    content = path.read_bytes()
+    with pytest.raises(InputDataError, match="no group '/models/missing'"):
+        io.set_group_attrs(path, "models/missing", {"x": 1})
+    with pytest.raises(InputDataError, match="thing"):
+        io.set_group_attrs(path, "frequency_response", {"thing": object()})
+    assert path.read_bytes() == content
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.nc"]
+    junk = tmp_path / "junk.nc"
+    junk.write_bytes(b"not netcdf")
+    assert io.group_attrs(junk, "frequency_response") is None
+
+
 def _update_many(path: str, writer: int, count: int) -> None:
     for k in range(count):
         io.update_campaign(path, f"models/writer{writer}_{k}",
