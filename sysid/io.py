@@ -356,6 +356,15 @@ def set_group_attrs(path: str | os.PathLike, group: str, attrs: Mapping) -> None
                 node.setncatts(encoded)
 
 
+def _subtree_nodes(target: str, tree: xr.DataTree) -> dict[str, xr.Dataset]:
+    """``{campaign path: own dataset}`` of every node of ``tree`` placed at ``target``."""
+    out = {}
+    for node in tree.subtree:
+        rel = node.relative_to(tree)
+        out[target if rel == "." else f"{target}/{rel}"] = node.to_dataset(inherit=False)
+    return out
+
+
 def _nc_group(nc, target: str):
     """The netCDF4 group at ``target`` ("/a/b"), or None."""
     node = nc
@@ -376,10 +385,7 @@ def _append_new_groups(path, target: str, dataset) -> bool:
     import netCDF4
 
     if isinstance(dataset, xr.DataTree):
-        new = {}
-        for node in dataset.subtree:
-            rel = node.relative_to(dataset)
-            new[target if rel == "." else f"{target}/{rel}"] = node.to_dataset(inherit=False)
+        new = _subtree_nodes(target, dataset)
     elif isinstance(dataset, xr.Dataset):
         new = {target: dataset}
     else:
@@ -400,7 +406,7 @@ def _append_new_groups(path, target: str, dataset) -> bool:
         return False  # not readable here: the full path reports it
     # Encode (and check) everything before the file is touched.
     encoded = {g: encode_complex(ds) for g, ds in new.items()}
-    _tree_from_nodes({g: ds for g, ds in encoded.items()}, f"in {path} (group {target})")
+    _tree_from_nodes(encoded, f"in {path} (group {target})")
     with atomic_path(path, suffix=".nc") as tmp:
         shutil.copyfile(path, tmp)
         for group, ds in encoded.items():
@@ -438,9 +444,7 @@ def _update_campaign(path, group: str, dataset) -> None:
     if isinstance(dataset, xr.DataTree):
         nodes = {p: ds for p, ds in nodes.items()
                  if p != target and not p.startswith(target + "/")}
-        for node in dataset.subtree:
-            rel = node.relative_to(dataset)
-            nodes[target if rel == "." else f"{target}/{rel}"] = node.to_dataset(inherit=False)
+        nodes.update(_subtree_nodes(target, dataset))
     elif isinstance(dataset, xr.Dataset):
         nodes[target] = dataset
     else:
