@@ -29,6 +29,7 @@ __all__ = [
     "DPI",
     "color_of",
     "png_bytes",
+    "render_png",
     "inputs_figure",
     "conditioning_figure",
     "cross_coherence_figure",
@@ -83,6 +84,17 @@ def png_bytes(fig: Figure) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI, metadata={"Software": None})
     return buf.getvalue()
+
+
+def render_png(builder, args: tuple) -> bytes:
+    """PNG bytes of ``builder(*args)``, one of this module's figure functions.
+
+    Module-level so that the report can hand it, with plain data, to worker processes.
+    """
+    fig = builder(*args)
+    data = png_bytes(fig)
+    fig.clear()
+    return data
 
 
 def aligned_phase(phase_deg: np.ndarray, reference_deg: np.ndarray | None = None) -> np.ndarray:

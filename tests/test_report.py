@@ -484,11 +484,15 @@ def test_missing_groups_say_not_available(tmp_path, capsys):
     assert list((tmp_path / "out" / "figures").iterdir()) == []
 
 
-def test_failure_midway_leaves_no_report(campaign, tmp_path, monkeypatch, capsys):
-    def broken(*args, **kwargs):
-        raise RuntimeError("plot failed")
+def _broken_figure(*args, **kwargs):
+    raise RuntimeError("plot failed")
 
-    monkeypatch.setattr(sysid.plots, "pair_figure", broken)
+
+@pytest.mark.parametrize("processes", ["1", "2"])
+def test_failure_midway_leaves_no_report(campaign, tmp_path, monkeypatch, capsys, processes):
+    """A figure that fails, drawn inline or in a worker process: no report is left."""
+    monkeypatch.setenv("SYSID_REPORT_PROCESSES", processes)
+    monkeypatch.setattr(sysid.plots, "pair_figure", _broken_figure)
     out = tmp_path / "new" / "report"
     with pytest.raises(RuntimeError, match="plot failed"):
         write_report(campaign["tree"], out, quiet=True)
@@ -535,3 +539,43 @@ def test_figures_are_deterministic():
     pngs = [sysid.plots.png_bytes(sysid.plots.time_response_figure(
         t, {"lon": np.cos(t)}, curves, {"q": "deg/s"}, "determinism", tic)) for _ in range(2)]
     assert pngs[0] == pngs[1] and pngs[0][:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_worker_processes_draw_the_same_figures_as_one_process(campaign, tmp_path, monkeypatch):
+    """Figures are drawn in worker processes when there are cores for it; the files and the
+    page must be what drawing them one by one in this process gives."""
+    tree = xr.DataTree.from_dict({
+        "/": campaign["tree"].to_dataset(inherit=False),
+        **{f"/maneuvers/{k}": v for k, v in campaign["maneuvers"].items()},
+        **{f"/verification/{k}": v for k, v in campaign["verification"].items()}})
+    pages = {}
+    for processes in ("1", "3"):
+        monkeypatch.setenv("SYSID_REPORT_PROCESSES", processes)
+        out = tmp_path / processes
+        pages[processes] = write_report(tree, out, quiet=True).read_text()
+    files = {n: sorted((tmp_path / n / "figures").iterdir()) for n in pages}
+    assert [p.name for p in files["1"]] == [p.name for p in files["3"]]
+    assert len(files["1"]) == len(campaign["maneuvers"]) + len(campaign["verification"])
+    for one, many in zip(files["1"], files["3"]):
+        assert one.read_bytes() == many.read_bytes(), one.name
+    created = re.compile(r"<td>report created</td><td>[^<]*</td>")
+    assert created.sub("", pages["1"]) == created.sub("", pages["3"])
+    assert "\x00" not in pages["3"]
+
+
+def test_report_processes_setting(monkeypatch):
+    from sysid.errors import InputDataError
+    from sysid.report import MAX_REPORT_PROCESSES, report_processes
+
+    monkeypatch.setenv("SYSID_REPORT_PROCESSES", "3")
+    assert report_processes() == 3
+    monkeypatch.setenv("SYSID_REPORT_PROCESSES", "many")
+    with pytest.raises(InputDataError, match="SYSID_REPORT_PROCESSES"):
+        report_processes()
+    monkeypatch.delenv("SYSID_REPORT_PROCESSES")
+    assert 1 <= report_processes() <= MAX_REPORT_PROCESSES
+    import multiprocessing
+
+    monkeypatch.setattr(multiprocessing.current_process(), "_config",
+                        {**multiprocessing.current_process()._config, "daemon": True})
+    assert report_processes() == 1   # a daemonic process (a Dask worker) may not fork
