@@ -2,7 +2,8 @@
 15 s each at 100 Hz) of the known system, with model reduction, from a perturbed start
 (target < 20 s on one core); for comparison the frequency-domain identification of the same
 structure on analytic responses, and the cost of one analytic sensitivity Jacobian against
-one finite-difference Jacobian (one simulation per parameter). Runs once as a plain test
+one finite-difference Jacobian (one simulation per parameter), and the relaxation with its
+early weighted solves capped against converging every one (ratio). Runs once as a plain test
 under --benchmark-disable. Stable timings need one BLAS thread (OPENBLAS_NUM_THREADS=1):
 on a loaded 2-core machine multi-threaded OpenBLAS slows the many small products by up to 10x.
 """
@@ -46,6 +47,26 @@ def _jacobian_timings(records, st) -> dict:
             "n_parameters": len(theta)}
 
 
+def _relaxation_timings(records, st, start) -> dict:
+    """The same fit (no reduction) with the early weighted solves capped (the default) and
+    converged every time (the baseline, as before the cap)."""
+    import sysid.identify.time_domain as td
+
+    out = {}
+    default = td.EARLY_NFEV
+    try:
+        for label, cap in (("uncapped", 10**9), ("capped", default)):
+            td.EARLY_NFEV = cap
+            t0 = time.perf_counter()
+            result = identify_time_domain(records, st, start=start, reduce=False)
+            out[f"relaxation_{label}_s"] = time.perf_counter() - t0
+            out[f"relaxation_{label}_cost_evaluations"] = result.n_cost_evaluations
+    finally:
+        td.EARLY_NFEV = default
+    out["relaxation_speedup_ratio"] = out["relaxation_uncapped_s"] / out["relaxation_capped_s"]
+    return out
+
+
 def test_bench_identify_time_domain(benchmark):
     st = truth_structure(extra_free=SPURIOUS)
     records = add_noise(multistep_records(noise=0.0, dt=0.01, duration=15.0), 1.0, seed=3)
@@ -72,6 +93,7 @@ def test_bench_identify_time_domain(benchmark):
     info["time_domain_outer_iterations"] = result.n_outer_iterations
     info["reduction_steps"] = len(result.reduction.steps)
     info.update(_jacobian_timings(records, truth_structure()))
+    info.update(_relaxation_timings(records, truth_structure(), truth_structure().theta0 * 0.7))
     print(f"\ntime domain {elapsed:.2f} s, frequency domain {elapsed_freq:.2f} s, {info}")
     assert set(result.reduction.removed) == set(SPURIOUS)
     assert set(result.structure.free_names) == set(truth_values())
