@@ -344,11 +344,11 @@ class _Context:
     figures: list[str] = field(default_factory=list)
     anchors: dict[str, str] = field(default_factory=dict)  # anchor -> caption
     _model_fr: dict = field(default_factory=dict)
-    _pending: dict = field(default_factory=dict)  # placeholder -> (name, path, caption, future)
+    _pending: dict = field(default_factory=dict)  # slot token -> (name, path, caption, future)
 
     def figure(self, name: str, caption: str, builder, *args) -> str:
         """Queue ``builder(*args)`` (a :mod:`sysid.plots` figure function) for
-        ``figures/<name>.png``; return a placeholder that :meth:`embed_figures` replaces
+        ``figures/<name>.png``; return a slot token that :meth:`embed_figures` replaces
         with the embedded ``<figure>``."""
         path = self.figure_dir / f"{name}.png"
         self.figures.append(path.name)
@@ -358,7 +358,7 @@ class _Context:
         return token
 
     def embed_figures(self, text: str) -> str:
-        """Write every queued figure and put its ``<figure>`` where its placeholder is."""
+        """Write every queued figure and put its ``<figure>`` in place of its slot token."""
         for token, (name, path, caption, future) in self._pending.items():
             data = future.result()
             path.write_bytes(data)
@@ -1102,7 +1102,7 @@ def build_html(tree: xr.DataTree, figure_dir: str | os.PathLike, *, title: str |
 
 
 def _page(ctx: _Context, title: str | None) -> str:
-    """The page with a placeholder for each queued figure."""
+    """The page, with a slot token where each queued figure goes."""
     tree, progress = ctx.tree, ctx.progress
     body: dict[str, str] = {}
     pair_results: dict[str, _PairResult] = {}

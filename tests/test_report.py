@@ -573,7 +573,13 @@ def test_report_processes_setting(monkeypatch):
     with pytest.raises(InputDataError, match="SYSID_REPORT_PROCESSES"):
         report_processes()
     monkeypatch.delenv("SYSID_REPORT_PROCESSES")
-    assert 1 <= report_processes() <= MAX_REPORT_PROCESSES
+    monkeypatch.setattr("os.sched_getaffinity", lambda pid: set(range(16)))
+    assert report_processes() == MAX_REPORT_PROCESSES   # capped
+    monkeypatch.setattr("os.sched_getaffinity", lambda pid: {0, 1})
+    assert report_processes() == 2                       # one per usable core
+    monkeypatch.setattr("os.sched_getaffinity", lambda pid: {0})
+    assert report_processes() == 1
+    monkeypatch.setattr("os.sched_getaffinity", lambda pid: {0, 1})
     import multiprocessing
 
     monkeypatch.setattr(multiprocessing.current_process(), "_config",
