@@ -376,7 +376,28 @@ class _Logger:
         return self.messages[-1] if self.messages else default
 
 
-class Instance:
+class ReleasedOnExit:
+    """Context-manager and finaliser behaviour of objects holding an FMU instance: leaving a
+    ``with`` block or garbage collection calls ``close()`` (which must be idempotent)."""
+
+    def close(self) -> None:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def __del__(self):
+        # The interpreter may be shutting down; a finaliser must not raise.
+        try:
+            self.close()
+        except Exception:
+            pass
+
+
+class Instance(ReleasedOnExit):
     """One FMU instance (model exchange or co-simulation) with fast raw FMI calls.
 
     Parameters
@@ -501,17 +522,6 @@ class Instance:
         except Exception:
             pass
 
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-
-    def __del__(self):
-        try:
-            self.close()
-        except Exception:
-            pass
 
 
 class DerivativeFunction:

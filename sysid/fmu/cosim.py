@@ -29,7 +29,8 @@ from __future__ import annotations
 import numpy as np
 
 from sysid.errors import FMUError, InputDataError, SimulationDiverged
-from sysid.fmu._runtime import FMUModel, Instance, _c_double_p, _c_uint_p, load_fmu
+from sysid.fmu._runtime import (FMUModel, Instance, ReleasedOnExit, _c_double_p, _c_uint_p,
+                                load_fmu)
 from sysid.fmu.linearize import analysis_unit, si_to_analysis
 from sysid.fmu.trim import TrimResult
 from sysid.units import CONTROLS, conversion_factor
@@ -48,7 +49,7 @@ DEFAULT_ENVELOPE = {"u": 400.0, "v": 200.0, "w": 200.0, "p": 300.0, "q": 300.0, 
                     "phi": 90.0, "theta": 80.0, "airspeed": 400.0}
 
 
-class CoSimulation:
+class CoSimulation(ReleasedOnExit):
     """One co-simulation instance of the truth helicopter, stepped from Python.
 
     Parameters
@@ -224,18 +225,6 @@ class CoSimulation:
         if self._inst is not None:
             self._inst.close()
             self._inst = None
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-
-    def __del__(self):
-        try:
-            self.close()
-        except Exception:
-            pass
 
 
 __all__ = ["CoSimulation", "DEFAULT_OUTPUTS", "MEASUREMENTS", "EXTRA_OUTPUTS",

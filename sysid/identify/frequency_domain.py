@@ -55,8 +55,8 @@ import xarray as xr
 from sysid.errors import IdentificationError, InputDataError
 from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
                                       stepwise_reduction)
-from sysid.identify.statistics import (ParameterStatistics, parameter_rows, parameter_statistics,
-                                      perturbed_start)
+from sysid.identify.statistics import (FitResultParameters, ParameterStatistics,
+                                      parameter_rows, parameter_statistics, perturbed_start)
 from sysid.models import LinearStructure
 from sysid.util import Progress
 
@@ -610,7 +610,7 @@ def _anchor_runaways(structure: LinearStructure, data: FitData, theta0, full: _C
 
 
 @dataclass
-class FrequencyFitResult:
+class FrequencyFitResult(FitResultParameters):
     """Outcome of :func:`identify_frequency_domain`.
 
     Attributes
@@ -655,19 +655,6 @@ class FrequencyFitResult:
     @property
     def skipped_pairs(self) -> dict:
         return dict(self.data.skipped)
-
-    @property
-    def unidentifiable(self) -> tuple[str, ...]:
-        """Parameters without influence on the selected pairs (final model, or the full model
-        before reduction when reduction removed them)."""
-        names = set(self.statistics.unidentifiable)
-        if self.full_statistics is not None:
-            names |= set(self.full_statistics.unidentifiable)
-        return tuple(sorted(names))
-
-    def value(self, name: str) -> float:
-        """Final value of any parameter (free, fixed or removed)."""
-        return float(self.model["value"].sel(parameter=name))
 
     def table(self) -> str:
         """Derivative table like the paper's Tables 2-3, delays, cost per pair and J_ave."""

@@ -25,7 +25,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from sysid.identify.statistics import ParameterStatistics
+from sysid.identify.statistics import ParameterStatistics, format_percent
 
 __all__ = ["FitOutcome", "ReductionStep", "ReductionResult", "stepwise_reduction",
            "GUIDELINES"]
@@ -78,14 +78,10 @@ class ReductionResult:
         lines = [f"{'step':>4}  {'parameter':<12}{'CR %':>9}{'I %':>9}{'cost before':>13}"
                  f"{'cost after':>12}  result"]
         for k, s in enumerate(self.steps, 1):
-            lines.append(f"{k:>4}  {s.parameter:<12}{_fmt(s.cramer_rao_percent):>9}"
-                         f"{_fmt(s.insensitivity_percent):>9}{s.cost_before:>13.3f}"
+            lines.append(f"{k:>4}  {s.parameter:<12}{format_percent(s.cramer_rao_percent):>9}"
+                         f"{format_percent(s.insensitivity_percent):>9}{s.cost_before:>13.3f}"
                          f"{s.cost_after:>12.3f}  {'removed' if s.accepted else 'kept (cost)'}")
         return "\n".join(lines)
-
-
-def _fmt(x: float) -> str:
-    return "inf" if not np.isfinite(x) else f"{x:.1f}"
 
 
 def _candidate(stats: ParameterStatistics, exclude: set[str], cr_max: float,
@@ -158,8 +154,8 @@ def stepwise_reduction(fit: Callable[[tuple[str, ...], FitOutcome], FitOutcome],
                                    float(stats.insensitivity_percent[k]), reason,
                                    float(current.cost), float(trial.cost), accepted))
         if progress is not None:
-            progress.message(f"  reduction: {name:<10} CR {_fmt(stats.cramer_rao_percent[k])} % "
-                             f"I {_fmt(stats.insensitivity_percent[k])} %  cost "
+            progress.message(f"  reduction: {name:<10} CR {format_percent(stats.cramer_rao_percent[k])} % "
+                             f"I {format_percent(stats.insensitivity_percent[k])} %  cost "
                              f"{current.cost:.3f} -> {trial.cost:.3f}  "
                              f"{'removed' if accepted else 'kept'}")
         if accepted:

@@ -111,13 +111,33 @@ class ParameterStatistics:
         for k, n in enumerate(self.names):
             flag = "" if self.identifiable[k] else "  unidentifiable"
             lines.append(f"{n:<12}{self.values[k]:>14.6g}{self.cramer_rao[k]:>12.4g}"
-                         f"{_pct(self.cramer_rao_percent[k]):>9}"
-                         f"{_pct(self.insensitivity_percent[k]):>9}{flag}")
+                         f"{format_percent(self.cramer_rao_percent[k]):>9}"
+                         f"{format_percent(self.insensitivity_percent[k]):>9}{flag}")
         return "\n".join(lines)
 
 
-def _pct(x: float) -> str:
+def format_percent(x: float) -> str:
+    """A Cramer-Rao or insensitivity percentage for a table: one decimal, ``inf`` for an
+    unidentifiable parameter."""
     return "inf" if not np.isfinite(x) else f"{x:.1f}"
+
+
+class FitResultParameters:
+    """Parameter look-ups shared by the frequency- and time-domain fit results, which carry
+    ``model`` (the model Dataset), ``statistics`` and ``full_statistics`` (before reduction)."""
+
+    @property
+    def unidentifiable(self) -> tuple[str, ...]:
+        """Parameters without influence on the fitted data (final model, or the full model
+        before reduction when reduction removed them)."""
+        names = set(self.statistics.unidentifiable)
+        if self.full_statistics is not None:
+            names |= set(self.full_statistics.unidentifiable)
+        return tuple(sorted(names))
+
+    def value(self, name: str) -> float:
+        """Final value of any parameter (free, fixed or removed)."""
+        return float(self.model["value"].sel(parameter=name))
 
 
 def parameter_rows(model, *, absolute_cr: bool = False) -> list[str]:
@@ -134,8 +154,8 @@ def parameter_rows(model, *, absolute_cr: bool = False) -> list[str]:
         flag = "" if bool(model["identifiable"].values[k]) else "  unidentifiable"
         cr = f"{float(model['cramer_rao'][k]):>12.4g}" if absolute_cr else ""
         lines.append(f"{name:<12}{float(model['value'][k]):>14.5g}{cr}"
-                     f"{_pct(float(model['cramer_rao_percent'][k])):>9}"
-                     f"{_pct(float(model['insensitivity_percent'][k])):>9}{flag}")
+                     f"{format_percent(float(model['cramer_rao_percent'][k])):>9}"
+                     f"{format_percent(float(model['insensitivity_percent'][k])):>9}{flag}")
     delays = [(n, float(model["value"][k])) for k, n in enumerate(names)
               if str(model["matrix"].values[k]) == "delay" and free[k]]
     if delays:

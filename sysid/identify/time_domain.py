@@ -90,8 +90,8 @@ import xarray as xr
 
 from sysid.errors import IdentificationError, InputDataError
 from sysid.identify.reduction import GUIDELINES, FitOutcome, ReductionResult, stepwise_reduction
-from sysid.identify.statistics import (ParameterStatistics, parameter_rows, parameter_statistics,
-                                      perturbed_start)
+from sysid.identify.statistics import (FitResultParameters, ParameterStatistics,
+                                      parameter_rows, parameter_statistics, perturbed_start)
 from sysid.models import LinearStructure, propagate
 
 __all__ = [
@@ -691,7 +691,7 @@ def _nuisance_values(conv: _Converged, k: int) -> np.ndarray:
 
 
 @dataclass
-class TimeFitResult:
+class TimeFitResult(FitResultParameters):
     """Outcome of :func:`identify_time_domain` (fields mirror
     :class:`sysid.identify.frequency_domain.FrequencyFitResult`).
 
@@ -758,17 +758,6 @@ class TimeFitResult:
     def J(self) -> float:
         """The cost (negative log-likelihood), named like the frequency-domain result."""
         return self.cost
-
-    @property
-    def unidentifiable(self) -> tuple[str, ...]:
-        names = set(self.statistics.unidentifiable)
-        if self.full_statistics is not None:
-            names |= set(self.full_statistics.unidentifiable)
-        return tuple(sorted(names))
-
-    def value(self, name: str) -> float:
-        """Final value of any parameter (free, fixed or removed)."""
-        return float(self.model["value"].sel(parameter=name))
 
     def bias(self, record: str, output: str) -> tuple[float, float]:
         """``(bias, Cramer-Rao bound)`` of one output in one record."""
