@@ -378,10 +378,8 @@ class _Logger:
 
 class ReleasedOnExit:
     """Context-manager and finaliser behaviour of objects holding an FMU instance: leaving a
-    ``with`` block or garbage collection calls ``close()`` (which must be idempotent)."""
-
-    def close(self) -> None:  # pragma: no cover - overridden
-        raise NotImplementedError
+    ``with`` block or garbage collection calls the subclass's ``close()``, which must be
+    idempotent."""
 
     def __enter__(self):
         return self
