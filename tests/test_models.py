@@ -216,8 +216,11 @@ def test_toml_keep_marks_what_model_reduction_must_not_remove(tmp_path):
     assert st.kept_names == ("M_u", "tau_M_lon")
     assert st.fix(["M_u"]).kept_names == ("tau_M_lon",)   # only free parameters count
     hover = load_structure("hover_6dof", trim={"theta": 6.76, "phi": -2.87})
-    # the on-axis delays: the cyclic ones in the p and q rows, the pedal's on the whole input
-    assert hover.kept_names == ("tau_M_lon", "tau_L_lat", "tau_ped")
+    # the heave damping, the speed derivatives and the torque coupling N_w that place the
+    # merged heave/yaw pair, and the on-axis delays: the cyclic ones in the p and q rows, the
+    # pedal's on the whole input
+    assert hover.kept_names == ("Z_u", "Z_w", "L_v", "M_u", "M_v", "N_u", "N_w",
+                                "tau_M_lon", "tau_L_lat", "tau_ped")
     for section, line in (("delays", 'tau_M_lon = { entry = "q,lon", value = 0.08 }'),
                           ("A", "M_q = { value = -3.0, lower = -20.0, upper = 0.0 }")):
         bad = tmp_path / f"bad_{section}.toml"
