@@ -113,41 +113,37 @@ def test_eigenvector_of_unstable_mode_is_pitch_roll(hover_lin):
     assert mag["w"] < 0.2
 
 
-@pytest.mark.parametrize("name", sorted(set(PADFIELD_STABILITY) - {"L_r"}))
+@pytest.mark.parametrize("name", sorted(PADFIELD_STABILITY))
 def test_hover_stability_derivative_signs(hover_lin, name):
+    """Every one of Padfield's 21 hover stability derivatives has his sign, L_r included
+    (the default flapping drive is Heffley & Mnich's and Helisim's: body p and q)."""
     assert np.sign(float(hover_lin.derivatives().sel(parameter=name))) == \
         np.sign(PADFIELD_STABILITY[name])
 
 
 @pytest.fixture(scope="module")
-def helisim_lin(truth_fmu):
-    """Hover linearisation with Helisim's convention: no r sin(i) in the flapping drive."""
+def exact_kinematics_lin(truth_fmu):
+    """Hover linearisation with exact shaft kinematics: r sin(i) in the flapping drive."""
     from sysid import fmu as truth
 
-    parameters = {"yaw_rate_flapping": 0.0}
+    parameters = {"yaw_rate_flapping": 1.0}
     return truth.linearize(truth.trim(0.0, fmu=truth_fmu, parameters=parameters),
                            fmu=truth_fmu)
 
 
-def test_yaw_rate_roll_coupling_documented_exception(hover_lin, helisim_lin):
-    """L_r is the one sign that differs from Padfield's set: the 3 deg forward shaft tilt
-    turns a yaw rate into a roll rate about the shaft (r sin i_s), which the rotor's roll
-    damping opposes (L_p sin i_s ~ -0.6 1/s) more strongly than the high tail rotor pushes
-    the other way. Without that term (Helisim's convention) L_r takes Padfield's sign, and
-    the difference is the rotor's roll damping seen through the tilt."""
+def test_exact_shaft_kinematics_option_turns_l_r_negative(hover_lin, exact_kinematics_lin):
+    """With ``yaw_rate_flapping = 1`` the 3 deg forward shaft tilt turns a yaw rate into a
+    roll rate about the shaft (r sin i_s), which the rotor's roll damping opposes
+    (L_p sin i_s ~ -0.6 1/s) more strongly than the high tail rotor pushes the other way:
+    L_r changes sign, and the difference is the rotor's roll damping seen through the tilt."""
     import math
 
-    L_r, L_p = (float(hover_lin.derivatives().sel(parameter=n)) for n in ("L_r", "L_p"))
-    L_r_helisim = float(helisim_lin.derivatives().sel(parameter="L_r"))
-    assert L_r < 0 < L_r_helisim
-    assert abs(L_r) < 0.1 * abs(L_p)
-    assert L_r - L_r_helisim == pytest.approx(L_p * math.sin(math.radians(3.0)), rel=0.3)
-
-
-@pytest.mark.parametrize("name", sorted(PADFIELD_STABILITY))
-def test_helisim_convention_has_every_padfield_sign(helisim_lin, name):
-    assert np.sign(float(helisim_lin.derivatives().sel(parameter=name))) == \
-        np.sign(PADFIELD_STABILITY[name])
+    L_p = float(hover_lin.derivatives().sel(parameter="L_p"))
+    L_r = float(hover_lin.derivatives().sel(parameter="L_r"))
+    L_r_exact = float(exact_kinematics_lin.derivatives().sel(parameter="L_r"))
+    assert L_r_exact < 0 < L_r
+    assert abs(L_r_exact) < 0.1 * abs(L_p)
+    assert L_r_exact - L_r == pytest.approx(L_p * math.sin(math.radians(3.0)), rel=0.3)
 
 
 @pytest.mark.parametrize("letter", ["X", "Y", "Z", "L", "M", "N"])

@@ -169,10 +169,10 @@ static void evaluate(const ModelInstance *comp, const double *x, double *dx, Out
         const double wh = wa - q * P(x_hub);
         /* shaft axes: body axes pitched nose-down by the shaft tilt (Eq. R1). The roll rate
          * driving the flapping is p cos(i) plus the yaw-rate component r sin(i) of exact
-         * kinematics, weighted by yaw_rate_flapping (default 1). With 0 it is left out, the
-         * convention of Helisim (Padfield's Bo-105 hover derivatives: L_r is the tail-rotor
-         * term alone, about +0.13) and of Heffley & Mnich (body p, q drive the flapping); with
-         * 1 the rotor's roll damping turns a yaw rate into a rolling moment,
+         * kinematics, weighted by yaw_rate_flapping (default 0). With 0 it is left out, the
+         * convention of Heffley & Mnich (body p, q drive the flapping) and of Helisim
+         * (Padfield's Bo-105 hover derivatives: L_r is the tail-rotor term alone, about
+         * +0.13); with 1 the rotor's roll damping turns a yaw rate into a rolling moment,
          * L_r ~ L_p sin(i) ~ -0.6 1/s (README: yaw_rate_flapping). */
         const double ps = p * ci + P(yaw_rate_flapping) * rr * si;
         double mux, muy, mu2, mu, cx, sx, lam, th0, th1s, th1c, b1c, b1s, pb, qb;
