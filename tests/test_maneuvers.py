@@ -9,7 +9,8 @@ import pytest
 import xarray as xr
 
 from sysid.errors import InputDataError
-from sysid.maneuvers import (LINEAR_REGIME_SCALE, Campaign, Maneuver, Stabilisation,
+from sysid.maneuvers import (HOVER_LATERAL_RISE, LINEAR_LATERAL_RISE, LINEAR_REGIME_SCALE,
+                             Campaign, Maneuver, Stabilisation,
                              closed_loop_modes, default_campaign, design_loops,
                              linear_regime_campaign, preflight_check)
 from sysid.units import CONTROLS, STATES_6DOF
@@ -36,7 +37,16 @@ def test_linear_regime_campaign_is_the_default_sweeps_smaller_in_calm_air(capsys
     for m in calm.maneuvers:
         assert m.amplitude == pytest.approx(LINEAR_REGIME_SCALE[m.axis]
                                             * default[m.name].amplitude)
-        assert dataclasses.replace(m, amplitude=default[m.name].amplitude) == default[m.name]
+        same = dataclasses.replace(m, amplitude=default[m.name].amplitude)
+        if m.axis == "lat":
+            # the lateral sweep rises linearly at half amplitude (the hover default is cubic)
+            rise = (m.low_frequency_fraction, m.full_amplitude_omega, m.amplitude_shape)
+            assert rise == LINEAR_LATERAL_RISE != HOVER_LATERAL_RISE
+            d = default[m.name]
+            same = dataclasses.replace(same, low_frequency_fraction=d.low_frequency_fraction,
+                                       full_amplitude_omega=d.full_amplitude_omega,
+                                       amplitude_shape=d.amplitude_shape)
+        assert same == default[m.name]
     assert LINEAR_REGIME_SCALE["lon"] < 1 and LINEAR_REGIME_SCALE["lat"] < 1
     assert calm.turbulence == 0 and calm.noise == default_campaign().noise and calm.seed == 3
     assert main(["simulate", "--linear-regime", "--print-default", "-o", "x.nc"]) == 0
