@@ -336,8 +336,7 @@ def linear_regime_campaign(airspeed_kt: float = 0.0, *, seed: int = 20261121,
     base = default_campaign(airspeed_kt, noise=noise, seed=seed).select("sweep_*")
     # At half amplitude the lateral sweep needs no cubic rise to stay linear near the
     # pitch-roll oscillation; with it, q/lon lost one point of MUAD at 0.56 rad/s on seed 3
-    # (-2.7 dB, thinner lateral excitation there for the conditioning), with the linear rise
-    # none.
+    # (-2.7 dB), with the linear rise none.
     fraction, full_omega, shape = LINEAR_LATERAL_RISE
     sweeps = [dataclasses.replace(m, amplitude=m.amplitude * LINEAR_REGIME_SCALE[m.axis])
               for m in base.maneuvers]
