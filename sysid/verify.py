@@ -45,7 +45,7 @@ from typing import Mapping, Sequence
 import numpy as np
 import xarray as xr
 
-from sysid.errors import InputDataError
+from sysid.errors import IdentificationError, InputDataError
 from sysid.models import simulate
 from sysid.units import CHANNELS, channel_attrs
 from sysid.validate import J_RMS_GUIDELINE, TIC_GUIDELINE, j_rms, theil_inequality
@@ -129,7 +129,7 @@ def verify(model: xr.Dataset, record: xr.Dataset, *,
     u = xr.Dataset({c: ("time", np.asarray(record[c].values, float) - trim_in[c])
                     for c in inputs}, coords={"time": t})
     Z = np.stack([np.asarray(record[o].values, float) - trim_out[o] for o in outputs], 1)
-    Y0 = _outputs(simulate(model, u), outputs)
+    Y0 = _finite_response(model, u, outputs, name, maneuver)
     W = np.array([float((weights or {}).get(o, 1.0)) for o in outputs])
     bias, shift, Y = _estimate(model, u, Z, Y0, outputs, inputs, W, estimate)
     return _result(record, maneuver, name, t, outputs, inputs, trim_in, trim_out, Z, Y, W,
@@ -138,6 +138,24 @@ def verify(model: xr.Dataset, record: xr.Dataset, *,
 
 def _outputs(sim: xr.Dataset, outputs) -> np.ndarray:
     return np.stack([np.asarray(sim[o].values, float) for o in outputs], 1)
+
+
+def _finite_response(model, u: xr.Dataset, outputs, name: str, maneuver: str) -> np.ndarray:
+    """The model's simulated outputs, or a clear error when they are not finite (a fit that
+    ran away leaves a model whose response overflows; nothing can be verified with it)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        Y = _outputs(simulate(model, u), outputs)
+    if not np.all(np.isfinite(Y)):
+        values = np.abs(np.asarray(model["value"].values, float)) if "value" in model else []
+        worst = ""
+        if len(values):
+            k = int(np.nanargmax(np.where(np.isfinite(values), values, np.inf)))
+            worst = (f"; its largest parameter is {str(model['parameter'].values[k])} = "
+                     f"{float(model['value'].values[k]):.3g}")
+        raise IdentificationError(
+            f"verify: model {name!r} gives non-finite outputs on {maneuver!r}: the identified "
+            f"model is unusable (a parameter ran away in the fit{worst})")
+    return Y
 
 
 def _estimate(model, u: xr.Dataset, Z, Y0, outputs, inputs, W, estimate):
@@ -155,7 +173,8 @@ def _estimate(model, u: xr.Dataset, Z, Y0, outputs, inputs, W, estimate):
             step = u.copy()
             for other in inputs:
                 step[other] = ("time", np.full(n_t, 1.0 if other == c else 0.0))
-            cols.append(_outputs(simulate(model, step), outputs))
+            cols.append(_finite_response(model, step, outputs, _source_name(model, None),
+                                         f"reference-shift step on {c}"))
             kinds.append(("shift", k))
     bias = np.zeros(p)
     shift = np.zeros(len(inputs))

@@ -28,6 +28,12 @@ def test_conditions_and_structures():
     assert [c.structure_name for c in cs[::2]] == ["hover_6dof", "hover_6dof", "forward_6dof",
                                                   "forward_6dof"]
     assert structure_for(29.9) == "hover_6dof" and structure_for(30) == "forward_6dof"
+    # the study's coherence admission changes with the structure: 0.6 in hover, 0.4 forward
+    from sysid.workflow import StudySettings
+
+    assert StudySettings(airspeed_kt=29.9).fd_coherence == 0.6
+    assert StudySettings(airspeed_kt=30.0).fd_coherence == 0.4
+    assert StudySettings(airspeed_kt=80.0, fd_coherence_min=0.5).fd_coherence == 0.5
 
 
 def test_speeds_file(tmp_path):

@@ -12,7 +12,7 @@ import xarray as xr
 from known_systems import (PLAN_2311, PLAN_3211, TRIM, add_noise, multistep_records,
                            truth_structure)
 
-from sysid.errors import InputDataError
+from sysid.errors import IdentificationError, InputDataError
 from sysid.validate import J_RMS_GUIDELINE, TIC_GUIDELINE
 from sysid.verify import merge_verifications, verification_table, verify, verify_maneuvers
 
@@ -118,6 +118,20 @@ def test_verify_errors(truth_model, offset_records):
 # ---------------------------------------------------------------------------------------------
 # Command line: identify on 3211s, verify on 2311s
 # ---------------------------------------------------------------------------------------------
+
+
+def test_a_model_whose_fit_ran_away_is_reported_not_crashed_on(offset_records):
+    """A parameter at 1e18 (a fit that ran away) makes the simulated response overflow; the
+    verification names the model, the manoeuvre and the parameter instead of failing inside
+    the least squares."""
+    st = truth_structure()
+    theta = st.theta0.copy()
+    k = st.free_names.index("L_p")
+    theta[k] = 1e18
+    runaway = st.to_dataset(theta, attrs={"method": "frequency_domain"})
+    with pytest.raises(IdentificationError, match=r"'frequency_domain' gives non-finite "
+                       r"outputs on '2311_.*L_p = 1e\+18"):
+        verify(runaway, offset_records[0])
 
 
 def test_cli_identify_time_and_verify(tmp_path, capsys):
