@@ -131,7 +131,7 @@ def verify(model: xr.Dataset, record: xr.Dataset, *,
     Z = np.stack([np.asarray(record[o].values, float) - trim_out[o] for o in outputs], 1)
     Y0 = _finite_response(model, u, outputs, name, maneuver)
     W = np.array([float((weights or {}).get(o, 1.0)) for o in outputs])
-    bias, shift, Y = _estimate(model, u, Z, Y0, outputs, inputs, W, estimate)
+    bias, shift, Y = _estimate(model, name, u, Z, Y0, outputs, inputs, W, estimate)
     return _result(record, maneuver, name, t, outputs, inputs, trim_in, trim_out, Z, Y, W,
                    bias, shift, estimate, model)
 
@@ -146,11 +146,11 @@ def _finite_response(model, u: xr.Dataset, outputs, name: str, maneuver: str) ->
     with np.errstate(over="ignore", invalid="ignore"):
         Y = _outputs(simulate(model, u), outputs)
     if not np.all(np.isfinite(Y)):
-        values = np.abs(np.asarray(model["value"].values, float)) if "value" in model else []
         worst = ""
-        if len(values):
-            k = int(np.nanargmax(np.where(np.isfinite(values), values, np.inf)))
-            worst = (f"; its largest parameter is {str(model['parameter'].values[k])} = "
+        if "value" in model:
+            magnitude = np.nan_to_num(np.abs(model["value"].values.astype(float)), nan=np.inf)
+            k = int(np.argmax(magnitude))
+            worst = (f"; its largest parameter is {model['parameter'].values[k]} = "
                      f"{float(model['value'].values[k]):.3g}")
         raise IdentificationError(
             f"verify: model {name!r} gives non-finite outputs on {maneuver!r}: the identified "
@@ -158,7 +158,7 @@ def _finite_response(model, u: xr.Dataset, outputs, name: str, maneuver: str) ->
     return Y
 
 
-def _estimate(model, u: xr.Dataset, Z, Y0, outputs, inputs, W, estimate):
+def _estimate(model, name: str, u: xr.Dataset, Z, Y0, outputs, inputs, W, estimate):
     """Linear least squares for the biases and reference shifts (weighted by W)."""
     n_t, p = Z.shape
     cols, kinds = [], []
@@ -173,7 +173,7 @@ def _estimate(model, u: xr.Dataset, Z, Y0, outputs, inputs, W, estimate):
             step = u.copy()
             for other in inputs:
                 step[other] = ("time", np.full(n_t, 1.0 if other == c else 0.0))
-            cols.append(_finite_response(model, step, outputs, _source_name(model, None),
+            cols.append(_finite_response(model, step, outputs, name,
                                          f"reference-shift step on {c}"))
             kinds.append(("shift", k))
     bias = np.zeros(p)

@@ -521,7 +521,6 @@ class Instance(ReleasedOnExit):
             pass
 
 
-
 class DerivativeFunction:
     """The model-exchange right-hand side ``dx/dt = f(x, u)`` of an FMU, for trim and
     linearisation.
