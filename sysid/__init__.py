@@ -15,6 +15,6 @@ try:
 except PackageNotFoundError:  # running from a source tree without installation
     __version__ = "0.0.0+source"
 
-from sysid.errors import SysidError  # noqa: E402
+from sysid.core.errors import SysidError  # noqa: E402
 
 __all__ = ["SysidError", "__version__"]

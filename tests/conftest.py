@@ -6,7 +6,7 @@ marked ``@pytest.mark.fmu``.
 """
 
 import pytest
-from sysid.util import blas_threads
+from sysid.core.util import blas_threads
 
 # One BLAS thread for the whole session, as the sysid command and workflows use: the suite
 # is many mid-sized matrix products, which multi-threaded OpenBLAS slows by up to 10x on the
@@ -17,14 +17,14 @@ _BLAS_LIMIT = blas_threads()
 @pytest.fixture(scope="session")
 def truth_fmu():
     """Path of the truth helicopter FMU, built from fmus/ with the machine's C compiler."""
-    from sysid.fmu import build_fmu
+    from sysid.truth import build_fmu
 
     return build_fmu()
 
 
 @pytest.fixture(scope="session")
 def hover_trim(truth_fmu):
-    """Hover trim of the truth helicopter (sysid.fmu.TrimResult)."""
-    from sysid.fmu import trim
+    """Hover trim of the truth helicopter (sysid.truth.TrimResult)."""
+    from sysid.truth import trim
 
     return trim(0.0, fmu=truth_fmu)

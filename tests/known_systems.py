@@ -24,9 +24,9 @@ import xarray as xr
 from test_identify_frequency import (PHI0, THETA0, TRUE_DELAYS, truth_structure,  # noqa: F401
                                      truth_values)
 
-from sysid.inputs import multistep
+from sysid.signals.inputs import multistep
 from sysid.models import discretize
-from sysid.units import CHANNELS, CONTROLS, STATES_6DOF
+from sysid.core.units import CHANNELS, CONTROLS, STATES_6DOF
 
 #: Absolute hover trim of the paper's Table 1 (%, deg); velocities and rates zero.
 TRIM = {"lon": 66.18, "lat": 52.65, "col": 64.13, "ped": 37.45, "u": 0.0, "v": 0.0, "w": 0.0,

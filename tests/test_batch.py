@@ -1,4 +1,4 @@
-"""sysid.batch: many flight conditions on a Dask LocalCluster, fault tolerance, resume.
+"""sysid.pipeline.batch: many flight conditions on a Dask LocalCluster, fault tolerance, resume.
 
 The default run flies one reduced (``quick``) 100-kt condition, one impossible one (400 kt:
 the trim refuses it) and one with an injected divergence on a 2-worker LocalCluster (one
@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from sysid.batch import (Condition, combine, conditions, load_conditions, monte_carlo,
+from sysid.pipeline.batch import (Condition, combine, conditions, load_conditions, monte_carlo,
                          run_batch, structure_for)
-from sysid.errors import InputDataError
+from sysid.core.errors import InputDataError
 
 EXHAUSTIVE = os.environ.get("SYSID_EXHAUSTIVE") == "1"
 
@@ -29,7 +29,7 @@ def test_conditions_and_structures():
                                                   "forward_6dof"]
     assert structure_for(29.9) == "hover_6dof" and structure_for(30) == "forward_6dof"
     # the study's coherence admission changes with the structure: 0.6 in hover, 0.4 forward
-    from sysid.workflow import StudySettings
+    from sysid.pipeline.study import StudySettings
 
     assert StudySettings(airspeed_kt=29.9).fd_coherence == 0.6
     assert StudySettings(airspeed_kt=30.0).fd_coherence == 0.4
@@ -133,7 +133,7 @@ def test_batch_on_local_cluster_survives_a_failing_condition(tmp_path, truth_fmu
 def test_diverged_estimates_are_drawn_off_scale(tmp_path):
     """A fit that ran off to 1e9 must not flatten its panel: the limit follows the truth and
     the median estimate, and the plot still renders."""
-    from sysid.batch import OFF_SCALE_FACTOR, _plot_limit, plot_derivatives
+    from sysid.pipeline.batch import OFF_SCALE_FACTOR, _plot_limit, plot_derivatives
 
     values = np.array([[-11.0, -2.8e9, -12.5], [-10.0, -9.0, np.nan]])
     truth = np.array([-11.6, -11.2, -10.9])

@@ -6,9 +6,9 @@ import scipy.optimize
 import xarray as xr
 
 import linear_systems as ls
-from sysid import composite
-from sysid.errors import InputDataError
-from sysid.frequency_response import frequency_response
+from sysid.spectral import composite
+from sysid.core.errors import InputDataError
+from sysid.spectral.response import frequency_response
 
 
 def test_default_windows_follow_the_guidelines():

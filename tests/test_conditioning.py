@@ -5,8 +5,8 @@ import pytest
 import xarray as xr
 
 import linear_systems as ls
-from sysid import conditioning, spectra
-from sysid.frequency_response import frequency_response
+from sysid.spectral import conditioning, spectra
+from sysid.spectral.response import frequency_response
 
 
 def exact_spectra(seed, n_in=4, n_out=3, n_f=25):

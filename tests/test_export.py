@@ -1,4 +1,4 @@
-"""FMU export of identified models (sysid.export) and its validation (sysid.fmu_validation).
+"""FMU export of identified models (sysid.fmi.export) and its validation (sysid.assess.exported).
 
 Independent truths: sysid.models.simulate (exact zero-order hold in Python with scipy's expm),
 the Pade-augmented model of sysid.models.statespace (python-control's Pade), a step-by-step
@@ -15,13 +15,13 @@ import pytest
 import scipy.linalg
 import xarray as xr
 
-from sysid.errors import FMUError, InputDataError, SysidError
-from sysid.export import export_fmu
-from sysid.fmu_validation import (compare_with_truth, envelope_check, roundtrip_error,
+from sysid.core.errors import FMUError, InputDataError, SysidError
+from sysid.fmi.export import export_fmu
+from sysid.assess.exported import (compare_with_truth, envelope_check, roundtrip_error,
                                   simulate_exported)
-from sysid.inputs import multistep
+from sysid.signals.inputs import multistep
 from sysid.models import LinearStructure, Parameter, six_dof_structure, simulate, statespace
-from sysid.units import DEG, FT
+from sysid.core.units import DEG, FT
 
 TRIM_IN = {"lon": 50.0, "lat": 48.0, "col": 55.0, "ped": 45.0}
 TRIM_OUT = {"u": 0.5, "theta": 3.0, "phi": -2.0, "psi": 10.0}
@@ -612,7 +612,7 @@ def test_envelope_check_with_a_user_envelope_file(tmp_path):
                     '[phase.lower]\nfrequency = [0.01, 100.0]\nvalue = [-5.0, -5.0]\n')
     # 2 dB mismatch: inside MUAD near 1 rad/s, outside the +-1 dB user bounds everywhere
     fr = _frequency_response(ds, factor=lambda w: np.full_like(w, 10 ** (-2 / 20)))
-    from sysid.validate import MUAD
+    from sysid.assess.envelopes import MUAD
 
     out = envelope_check({"a": ds, "b": ds}, fr, [MUAD, toml])
     assert list(out.envelope.values) == ["MUAD", "tight"]
@@ -628,7 +628,7 @@ def test_envelope_check_with_a_user_envelope_file(tmp_path):
 
 @pytest.fixture(scope="module")
 def linearization(truth_fmu, hover_trim):
-    from sysid.fmu import linearize
+    from sysid.truth import linearize
 
     return linearize(hover_trim).quasi_steady
 
@@ -658,7 +658,7 @@ def test_linearization_round_trip_and_truth_comparison(truth_fmu, hover_trim, li
 
 
 def _campaign(tmp_path):
-    from sysid.io import write_campaign
+    from sysid.data.io import write_campaign
 
     ds = _model()
     tree = xr.DataTree.from_dict({"/": xr.Dataset(attrs={"name": "test"}),
@@ -671,7 +671,7 @@ def _campaign(tmp_path):
 
 def test_cli_export_and_validate(tmp_path, capsys):
     from sysid.cli import main
-    from sysid.io import read_campaign
+    from sysid.data.io import read_campaign
 
     path = _campaign(tmp_path)
     out = tmp_path / "model.fmu"
@@ -695,7 +695,8 @@ def test_validate_reports_an_unusable_model_and_validates_the_others(tmp_path, c
     """A model whose exported FMU cannot be simulated (seen in a batch: a diverged fit with
     derivatives near 1e19 made CVode fail) is a validation result stored and printed, not a
     crash; the other models are still validated."""
-    from sysid import fmu_validation, io
+    from sysid.assess import exported as fmu_validation
+    from sysid.data import io
     from sysid.cli import main
 
     real = fmu_validation.roundtrip_error

@@ -6,7 +6,7 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 
-from sysid.errors import FMUError
+from sysid.core.errors import FMUError
 
 pytestmark = pytest.mark.fmu
 
@@ -18,7 +18,7 @@ def test_fmpy_validation_reports_nothing(truth_fmu):
 
 
 def test_build_is_cached_by_source_hash(truth_fmu):
-    from sysid.fmu import build_fmu
+    from sysid.truth import build_fmu
 
     assert build_fmu() == truth_fmu
     assert truth_fmu.name.startswith("helicopter-") and truth_fmu.suffix == ".fmu"
@@ -61,7 +61,7 @@ def test_header_and_model_description_agree(truth_fmu):
 
 
 def test_units_declared_with_display_units(truth_fmu):
-    from sysid.fmu import load_fmu
+    from sysid.truth import load_fmu
 
     model = load_fmu(truth_fmu)
     assert model.unit("u") == "m/s" and model.unit("p") == "rad/s"
@@ -72,7 +72,7 @@ def test_units_declared_with_display_units(truth_fmu):
 
 
 def test_every_parameter_has_a_default(truth_fmu):
-    from sysid.fmu import load_fmu
+    from sysid.truth import load_fmu
 
     model = load_fmu(truth_fmu)
     assert len(model.parameter_names) > 60
@@ -81,7 +81,7 @@ def test_every_parameter_has_a_default(truth_fmu):
 
 
 def test_missing_compiler_gives_one_line_fmu_error(monkeypatch, tmp_path):
-    from sysid.fmu import build_fmu
+    from sysid.truth import build_fmu
 
     monkeypatch.setenv("SYSID_CACHE_DIR", str(tmp_path))
     monkeypatch.setenv("CC", "/nonexistent/cc")
@@ -97,8 +97,8 @@ def test_compile_error_leaves_no_fmu(monkeypatch, tmp_path):
     """A failing compiler run is reported in one line and leaves the cache clean."""
     import shutil
 
-    from sysid._paths import fmu_sources_dir
-    from sysid.fmu import build_model_fmu
+    from sysid.core.paths import fmu_sources_dir
+    from sysid.truth import build_model_fmu
 
     src = tmp_path / "broken"
     shutil.copytree(fmu_sources_dir() / "helicopter", src)
@@ -111,7 +111,7 @@ def test_compile_error_leaves_no_fmu(monkeypatch, tmp_path):
 
 
 def test_corrupted_fmu_gives_one_line_fmu_error(tmp_path, truth_fmu):
-    from sysid.fmu import load_fmu
+    from sysid.truth import load_fmu
 
     bad = tmp_path / "broken.fmu"
     bad.write_bytes(truth_fmu.read_bytes()[:2000])
@@ -125,7 +125,7 @@ def test_corrupted_fmu_gives_one_line_fmu_error(tmp_path, truth_fmu):
 
 def test_fmu_state_get_set_and_serialisation(truth_fmu, hover_trim):
     """fmi2GetFMUstate/SetFMUstate restore the trajectory exactly; serialisation too."""
-    from sysid.fmu import CoSimulation
+    from sysid.truth import CoSimulation
 
     with CoSimulation(truth_fmu) as sim:
         sim.reset(hover_trim)
@@ -149,7 +149,7 @@ def test_fmu_state_get_set_and_serialisation(truth_fmu, hover_trim):
 def test_rk4_lands_on_communication_points(truth_fmu, hover_trim):
     """An odd communication step (not a multiple of h_rk4) ends exactly at t + dt, and
     splitting a step into pieces changes the result only at the RK4 truncation level."""
-    from sysid.fmu import CoSimulation
+    from sysid.truth import CoSimulation
 
     with CoSimulation(truth_fmu) as sim:
         sim.reset(hover_trim)

@@ -57,7 +57,7 @@ def padfield_control(letter, control):
 
 @pytest.fixture(scope="module")
 def hover_lin(hover_trim):
-    from sysid.fmu import linearize
+    from sysid.truth import linearize
 
     return linearize(hover_trim)
 
@@ -67,7 +67,7 @@ def test_jacobian_independent_of_step(hover_trim):
     agree to 1e-4 relative on every significant entry: |A_ij| >= 1e-4 max_k |A_ik| (rows
     scaled by their largest entry, so that entries below the row's numerical noise floor are
     not judged), same for B."""
-    from sysid.fmu import jacobians_si
+    from sysid.truth import jacobians_si
 
     A1, B1 = jacobians_si(hover_trim, step=1e-4)
     A2, B2 = jacobians_si(hover_trim, step=1e-5)
@@ -124,7 +124,7 @@ def test_hover_stability_derivative_signs(hover_lin, name):
 @pytest.fixture(scope="module")
 def exact_kinematics_lin(truth_fmu):
     """Hover linearisation with exact shaft kinematics: r sin(i) in the flapping drive."""
-    from sysid import fmu as truth
+    from sysid import truth
 
     parameters = {"yaw_rate_flapping": 1.0}
     return truth.linearize(truth.trim(0.0, fmu=truth_fmu, parameters=parameters),
@@ -173,8 +173,8 @@ def test_main_control_power_within_factor_2(hover_lin, letter, control):
 
 def test_named_derivatives_remove_rigid_body_terms(truth_fmu):
     """At 80 kt, A_r[w, q] = Z_q + U0 (deg->rad): the named derivative excludes U0."""
-    from sysid.fmu import linearize, trim
-    from sysid.kinematics import rigid_body_terms
+    from sysid.truth import linearize, trim
+    from sysid.core.kinematics import rigid_body_terms
 
     t = trim(80.0, fmu=truth_fmu)
     lin = linearize(t)

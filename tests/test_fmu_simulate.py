@@ -5,7 +5,7 @@ import pytest
 import xarray as xr
 from scipy.signal import lsim
 
-from sysid.errors import InputDataError, SimulationDiverged
+from sysid.core.errors import InputDataError, SimulationDiverged
 
 pytestmark = pytest.mark.fmu
 
@@ -36,7 +36,7 @@ def step(t, start=0.0, amp=1.0):
 def test_cs_and_me_agree_on_a_doublet(hover_trim):
     """10 s longitudinal doublet from hover: RK4 co-simulation and CVode model exchange agree
     within 1 % of the peak response (deviation from trim) in every output."""
-    from sysid.fmu import simulate
+    from sysid.truth import simulate
 
     u = inputs(hover_trim, 10.0, lon=lambda t: doublet(t, amp=5.0))
     cs = simulate(u, hover_trim, mode="cs")
@@ -55,7 +55,7 @@ def test_cs_and_me_agree_on_a_doublet(hover_trim):
 
 
 def test_time_history_follows_data_model(hover_trim):
-    from sysid.fmu import simulate
+    from sysid.truth import simulate
 
     ds = simulate(inputs(hover_trim, 1.0, lon=lambda t: step(t, 0.5)), hover_trim)
     assert ds["time"].values[0] == 0.0 and ds.sizes["time"] == 100
@@ -76,7 +76,7 @@ def test_time_history_follows_data_model(hover_trim):
 def test_collective_step_yaws_the_aircraft(hover_trim):
     """Main-rotor torque reaction: more collective turns the nose right (counter-clockwise
     rotor seen from above), with nothing else moved."""
-    from sysid.fmu import simulate
+    from sysid.truth import simulate
 
     ds = simulate(inputs(hover_trim, 2.0, col=lambda t: step(t, 0.0, 2.0)), hover_trim)
     r = ds["r"].sel(time=1.0, method="nearest")
@@ -87,7 +87,7 @@ def test_collective_step_yaws_the_aircraft(hover_trim):
 def test_lateral_cyclic_pitches_the_aircraft(hover_trim):
     """Rotor cross-coupling: a lateral cyclic step produces a pitch rate of at least 10 % of
     the roll rate within the first second."""
-    from sysid.fmu import simulate
+    from sysid.truth import simulate
 
     ds = simulate(inputs(hover_trim, 1.0, lat=lambda t: step(t, 0.0, 1.0)), hover_trim)
     p = np.abs(ds["p"] - ds["p"][0]).max()
@@ -101,7 +101,7 @@ def test_cyclic_rate_response_has_equivalent_delay(hover_trim, axis, rate):
     """The full model's early rate response to a cyclic step lags the quasi-steady 6-DoF
     model's by an equivalent time delay (actuators + flapping + inflow) of 50-250 ms: the
     delay tau minimising sum (q_full(t) - q_qs(t - tau))^2 over the first second."""
-    from sysid.fmu import linearize, simulate
+    from sysid.truth import linearize, simulate
 
     qs = linearize(hover_trim).quasi_steady
     dt, amp = 0.001, 0.5
@@ -122,7 +122,7 @@ def test_cyclic_rate_response_has_equivalent_delay(hover_trim, axis, rate):
 
 
 def test_controls_saturate_at_travel_limits(hover_trim):
-    from sysid.fmu import simulate
+    from sysid.truth import simulate
 
     over = simulate(inputs(hover_trim, 1.0, lon=lambda t: 150.0 - hover_trim.controls["lon"]),
                     hover_trim)
@@ -141,7 +141,7 @@ def test_controls_saturate_at_travel_limits(hover_trim):
 
 
 def test_nan_input_is_a_clear_error(hover_trim):
-    from sysid.fmu import CoSimulation, simulate
+    from sysid.truth import CoSimulation, simulate
 
     u = inputs(hover_trim, 1.0)
     u["lat"][30] = np.nan
@@ -160,8 +160,8 @@ def test_nan_input_is_a_clear_error(hover_trim):
 
 def test_fmu_refuses_nan_through_fmi(hover_trim):
     """Defence in depth: the FMU itself refuses a non-finite input with a logged reason."""
-    from sysid.errors import FMUError
-    from sysid.fmu import Instance, load_fmu
+    from sysid.core.errors import FMUError
+    from sysid.truth import Instance, load_fmu
 
     model = load_fmu()
     with Instance(model, "cs") as inst:
@@ -171,7 +171,7 @@ def test_fmu_refuses_nan_through_fmi(hover_trim):
 
 
 def test_divergence_raises_simulation_diverged(hover_trim):
-    from sysid.fmu import CoSimulation
+    from sysid.truth import CoSimulation
 
     with CoSimulation(name="runaway") as sim:
         sim.reset(hover_trim)
@@ -187,7 +187,7 @@ def test_divergence_raises_simulation_diverged(hover_trim):
 def test_gusts_act_in_body_axes(hover_trim):
     """A 10 ft/s headwind gust (u_gust = -10 ft/s: air moving aft) reads as airspeed and
     blows the rotor back: nose-up pitch rate."""
-    from sysid.fmu import simulate
+    from sysid.truth import simulate
 
     u = inputs(hover_trim, 1.0)
     u["u_gust"] = ("time", np.full(u.sizes["time"], -10.0), {"units": "ft/s"})

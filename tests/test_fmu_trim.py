@@ -5,14 +5,14 @@ import math
 import numpy as np
 import pytest
 
-from sysid.errors import InputDataError
+from sysid.core.errors import InputDataError
 
 pytestmark = pytest.mark.fmu
 
 
 @pytest.fixture(scope="module")
 def trims(truth_fmu):
-    from sysid.fmu import trim
+    from sysid.truth import trim
 
     return {v: trim(v, fmu=truth_fmu) for v in (0, 20, 40, 50, 60, 70, 80, 90, 100)}
 
@@ -29,7 +29,7 @@ def test_trim_residual_below_1e8(trims, speed):
 
 @pytest.mark.parametrize("speed", [0, 40, 80, 100])
 def test_trim_is_level_zero_sideslip_along_x(trims, speed):
-    from sysid.units import KT
+    from sysid.core.units import KT
 
     t = trims[speed]
     s = t.states
@@ -86,7 +86,7 @@ def test_trim_attributes_and_table(trims):
 
 
 def test_trim_start_values_initialise_an_instance_at_equilibrium(truth_fmu, trims):
-    from sysid.fmu import CoSimulation
+    from sysid.truth import CoSimulation
 
     t = trims[80]
     with CoSimulation(truth_fmu) as sim:
@@ -99,7 +99,7 @@ def test_trim_start_values_initialise_an_instance_at_equilibrium(truth_fmu, trim
 
 
 def test_trim_rejects_bad_airspeed():
-    from sysid.fmu import trim
+    from sysid.truth import trim
 
     with pytest.raises(InputDataError, match="airspeed"):
         trim(float("nan"))

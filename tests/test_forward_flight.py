@@ -16,7 +16,7 @@ import forward_flight  # noqa: E402
 
 @pytest.fixture(scope="module")
 def lin80(truth_fmu):
-    from sysid import fmu
+    from sysid import truth as fmu
 
     trim = fmu.trim(80.0, fmu=truth_fmu)
     return trim, fmu.linearize(trim, fmu=truth_fmu).quasi_steady
@@ -48,7 +48,7 @@ def test_forward_structure_starts_near_the_80kt_truth(lin80):
 @pytest.mark.fmu
 def test_80kt_lon_sweep_stays_in_the_envelope(truth_fmu):
     """The lon sweep diverged at 80 kt with the hover amplitudes and velocity hold."""
-    from sysid.maneuvers import default_campaign, run_campaign
+    from sysid.flight_test.campaign import default_campaign, run_campaign
 
     c = default_campaign(80.0)
     c = dataclasses.replace(c, maneuvers=[m for m in c.maneuvers if m.name == "sweep_lon_1"])

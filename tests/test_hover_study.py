@@ -1,6 +1,6 @@
 """The paper's hover study on the truth FMU, end to end (the README's main command).
 
-One module-scoped run of :func:`sysid.workflow.run_study` with the default campaign
+One module-scoped run of :func:`sysid.pipeline.study.run_study` with the default campaign
 (sensor noise and light turbulence on, fixed seed) feeds every check here but a few, which fly
 the campaign's sweeps at other amplitudes and lateral rises, or in the linear regime, to show
 where q/lon's former miss of MUAD came from; each assertion is
@@ -28,7 +28,7 @@ CYCLIC_DELAYS = ("tau_M_lon", "tau_L_lon", "tau_L_lat", "tau_M_lat")
 
 @pytest.fixture(scope="module")
 def study(tmp_path_factory, truth_fmu):
-    from sysid.workflow import StudySettings, run_study, study_tree
+    from sysid.pipeline.study import StudySettings, run_study, study_tree
 
     out = tmp_path_factory.mktemp("hover_study")
     report = run_study(out, StudySettings(), quiet=True)
@@ -42,8 +42,8 @@ def _perturbation(ds: xr.Dataset, channel: str) -> np.ndarray:
 def test_rerun_of_finished_parts_recomputes_nothing(study):
     """Every stage is stamped with its cache key and the seconds it took; a re-run of the
     parts before the results finds them all cached and so leaves the campaign untouched."""
-    from sysid.errors import SysidError
-    from sysid.workflow import PARTS, StudySettings, run_study
+    from sysid.core.errors import SysidError
+    from sysid.pipeline.study import PARTS, StudySettings, run_study
 
     path = study["dir"] / "campaign.nc"
     before = path.stat().st_mtime_ns
@@ -61,7 +61,7 @@ def test_editing_the_structure_file_invalidates_the_fits(tmp_path, truth_fmu):
     """The fits are cached by the structure's text, not its name: an edited structure file
     re-runs both identifications, while the campaign and the spectra stay cached."""
     from sysid.models import structure_path
-    from sysid.workflow import StudySettings, _Study
+    from sysid.pipeline.study import StudySettings, _Study
 
     toml = tmp_path / "mine.toml"
     toml.write_text(structure_path("hover_6dof").read_text())
@@ -114,7 +114,7 @@ def test_on_axis_composite_coherence_is_high_from_1_to_10_rad_s(study):
 def test_composite_agrees_with_the_full_linearisation_within_muad(study):
     """Against the FMU's full linearisation (rotor, inflow and actuator states included)."""
     from sysid.models import frequency_response
-    from sysid.validate import MUAD, check_envelope, mismatch
+    from sysid.assess.envelopes import MUAD, check_envelope, mismatch
 
     tree = study["tree"]
     fr = tree["frequency_response"].to_dataset()
@@ -136,10 +136,10 @@ def test_composite_agrees_with_the_full_linearisation_within_muad(study):
 # -- Where q/lon's miss comes from, and the campaign without it (issue 4) --------------------
 def _sweep_responses(fmu, campaign):
     """Fly ``campaign`` and return it with the conditioned composite responses of u..r."""
-    from sysid.frequency_response import frequency_response
-    from sysid.io import maneuvers
-    from sysid.maneuvers import run_campaign
-    from sysid.units import CONTROLS
+    from sysid.spectral.response import frequency_response
+    from sysid.data.io import maneuvers
+    from sysid.flight_test.campaign import run_campaign
+    from sysid.core.units import CONTROLS
 
     tree = run_campaign(campaign, quiet=True, fmu=fmu)
     fr = frequency_response(maneuvers(tree, "sweep_*"), CONTROLS, ["u", "v", "w", "p", "q", "r"])
@@ -148,7 +148,7 @@ def _sweep_responses(fmu, campaign):
 
 def _mismatch_to_linearisation(tree, fr, out, inp):
     from sysid.models import frequency_response
-    from sysid.validate import mismatch
+    from sysid.assess.envelopes import mismatch
 
     full = frequency_response(tree["linearization_full"].to_dataset(), fr.frequency.values)
     return mismatch(full.sel(output=out, input=inp), fr.H.sel(output=out, input=inp))
@@ -164,7 +164,7 @@ def test_q_lon_miss_near_the_pitch_roll_oscillation_shrinks_with_amplitude(truth
     oscillation and takes the full-amplitude excess to about 3.9 dB."""
     import dataclasses
 
-    from sysid.maneuvers import LINEAR_LATERAL_RISE, default_campaign
+    from sysid.flight_test.campaign import LINEAR_LATERAL_RISE, default_campaign
 
     cubic = default_campaign(0.0, noise=False).select("sweep_*")
     fraction, full_omega, shape = LINEAR_LATERAL_RISE
@@ -188,10 +188,10 @@ def test_q_lon_miss_near_the_pitch_roll_oscillation_shrinks_with_amplitude(truth
 
 
 def _check_linear_regime_campaign(fmu, seed):
-    """Fly :func:`sysid.maneuvers.linear_regime_campaign` with ``seed`` and assert issue 4's
+    """Fly :func:`sysid.flight_test.campaign.linear_regime_campaign` with ``seed`` and assert issue 4's
     check; returns the per-pair inside fractions and minimum coherence over 1-10 rad/s."""
-    from sysid.maneuvers import linear_regime_campaign
-    from sysid.validate import MUAD, check_envelope
+    from sysid.flight_test.campaign import linear_regime_campaign
+    from sysid.assess.envelopes import MUAD, check_envelope
 
     tree, fr = _sweep_responses(fmu, linear_regime_campaign(0.0, seed=seed))
     assert float(tree.attrs["airspeed_kt"]) == 0.0 and "turbulence = 0.0" in tree.attrs[
@@ -212,7 +212,7 @@ def _check_linear_regime_campaign(fmu, seed):
 
 
 def test_linear_regime_campaign_agrees_with_the_full_linearisation_within_muad(truth_fmu):
-    """Issue 4's check where the truth is close to linear (sysid.maneuvers.
+    """Issue 4's check where the truth is close to linear (sysid.flight_test.campaign.
     linear_regime_campaign: cyclic and pedal sweeps at half amplitude, calm air, sensor noise
     on): every on-axis pair has coherence >= 0.8 over 1-10 rad/s and lies inside MUAD
     wherever its coherence is >= 0.6. q/lon is still 3-7 dB high at 0.3-0.5 rad/s."""
@@ -270,7 +270,7 @@ def test_both_models_predict_2311_responses_they_were_not_fitted_to(study):
 
 
 def test_comparison_table_is_written_and_dominant_signs_agree(study):
-    from sysid.compare import sign_agreement
+    from sysid.assess.comparison import sign_agreement
 
     table = study["tree"]["comparison"].to_dataset()
     assert set(table.model.values) == {"frequency_domain", "time_domain"}

@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from sysid.errors import IdentificationError
+from sysid.core.errors import IdentificationError
 from sysid.identify import (DEFAULT_PAIRS, cifer_cost, coherence_weight, equation_error_start,
                             identify_frequency_domain, parameter_statistics, select_fit_data)
 from sysid.identify.frequency_domain import _Problem
 from sysid.models import six_dof_structure, simulate
-from sysid.units import DEG, FT
+from sysid.core.units import DEG, FT
 
 # Padfield, Helisim Bo-105 hover, SI and rad (helicopter.md).
 _STABILITY_SI = dict(X_q=0.7086, Z_w=-0.3220, M_u=0.1045, M_q=-3.7472, M_v=0.0900,
@@ -314,7 +314,7 @@ def _closed_loop_records(structure, *, dt=0.01, seed=0):
     total inputs are checked to reproduce the states through :func:`simulate`.
     """
     control = pytest.importorskip("control")
-    from sysid.inputs import frequency_sweep
+    from sysid.signals.inputs import frequency_sweep
     from sysid.models import discretize
 
     A, B, C, D, tau = structure.matrices()
@@ -352,7 +352,7 @@ def _closed_loop_records(structure, *, dt=0.01, seed=0):
 
 
 def test_full_chain_simulated_sweeps_within_three_cramer_rao_bounds():
-    fr_module = pytest.importorskip("sysid.frequency_response")
+    fr_module = pytest.importorskip("sysid.spectral.response")
     st = truth_structure()
     records = _closed_loop_records(st)
     fr = fr_module.frequency_response(records, list(st.inputs), list(st.states))
@@ -378,7 +378,7 @@ def test_full_chain_simulated_sweeps_within_three_cramer_rao_bounds():
 
 @pytest.mark.parametrize("with_linearization", [False, True])
 def test_cli_identify(tmp_path, capsys, with_linearization):
-    io = pytest.importorskip("sysid.io")
+    io = pytest.importorskip("sysid.data.io")
     from sysid.cli import main
 
     st = truth_structure()
@@ -405,7 +405,7 @@ def test_cli_identify(tmp_path, capsys, with_linearization):
 
 
 def test_cli_identify_errors(tmp_path, capsys):
-    io = pytest.importorskip("sysid.io")
+    io = pytest.importorskip("sysid.data.io")
     from sysid.cli import main
 
     path = tmp_path / "empty.nc"

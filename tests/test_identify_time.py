@@ -18,7 +18,7 @@ from known_systems import (NOISE_STD, TRIM, TRUE_DELAYS, add_noise,
                            multistep_records, truth_structure, truth_values)
 from test_identify_frequency import SPURIOUS
 
-from sysid.errors import IdentificationError, InputDataError
+from sysid.core.errors import IdentificationError, InputDataError
 from sysid.identify import identify_time_domain
 from sysid.identify.time_domain import OutputErrorModel, fitted_outputs, prepare_records
 from sysid.models import LinearStructure, Parameter

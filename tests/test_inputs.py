@@ -1,4 +1,4 @@
-"""Tests of sysid.inputs against definitions and analytic spectra."""
+"""Tests of sysid.signals.inputs against definitions and analytic spectra."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from sysid import inputs
-from sysid.errors import InputDataError
+from sysid.signals import inputs
+from sysid.core.errors import InputDataError
 
 AXES = ("lon", "lat", "col", "ped")
 
@@ -85,7 +85,7 @@ def test_default_campaign_sweeps_autospectrum_within_10_db_per_rad_s():
     the bottom than at the top, plus the long-period dwell: +18/-8 dB); the campaign's
     low-frequency amplitude schedule, there to bound the attitude excursions, also flattens
     the spectrum."""
-    from sysid.maneuvers import default_campaign, excitation
+    from sysid.flight_test.campaign import default_campaign, excitation
 
     dt = 0.01
     for m in default_campaign(0.0).maneuvers:
@@ -384,7 +384,7 @@ def test_dryden_seeds_and_hover_floor():
 
 
 def test_sweep_amplitude_schedule_follows_instantaneous_frequency():
-    from sysid.inputs import frequency_sweep
+    from sysid.signals.inputs import frequency_sweep
 
     full = frequency_sweep("lon", omega_min=0.2, omega_max=20.0, duration=90.0, amplitude=8.0,
                            lead_in=0.0, lead_out=0.0, long_period_cycles=1.0)

@@ -1,4 +1,4 @@
-"""Tests of sysid.io: exact netCDF round trips, plain-reader compatibility, CSV import errors,
+"""Tests of sysid.data.io: exact netCDF round trips, plain-reader compatibility, CSV import errors,
 and the ``sysid import`` / ``sysid export-csv`` commands."""
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ import xarray as xr
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from sysid import io
+from sysid.data import io
 from sysid.cli import main
-from sysid.errors import InputDataError
-from sysid.units import channel_attrs
+from sysid.core.errors import InputDataError
+from sysid.core.units import channel_attrs
 
 
 def _time_history(name="sweep_lon_1", n=300, dt=0.01, seed=0):
@@ -486,7 +486,7 @@ def test_cli_failure_leaves_no_output(tmp_path, capsys):
 
 
 def test_trim_from_attrs_takes_each_channel_from_the_first_numeric_source():
-    from sysid.io import trim_from_attrs
+    from sysid.data.io import trim_from_attrs
 
     first = {"trim_lon": 40.0, "trim_q": "n/a"}
     second = xr.Dataset(attrs={"trim_lon": 99.0, "trim_q": 0.5, "trim_theta": 2.7})

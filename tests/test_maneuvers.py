@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from sysid.errors import InputDataError
-from sysid.maneuvers import (HOVER_LATERAL_RISE, LINEAR_LATERAL_RISE, LINEAR_REGIME_SCALE,
+from sysid.core.errors import InputDataError
+from sysid.flight_test.campaign import (HOVER_LATERAL_RISE, LINEAR_LATERAL_RISE, LINEAR_REGIME_SCALE,
                              Campaign, Maneuver, Stabilisation,
                              closed_loop_modes, default_campaign, design_loops,
                              linear_regime_campaign, preflight_check)
-from sysid.units import CONTROLS, STATES_6DOF
+from sysid.core.units import CONTROLS, STATES_6DOF
 
 
 def test_default_campaign_mirrors_the_paper():

@@ -10,12 +10,12 @@ import pytest
 import scipy.signal
 import xarray as xr
 
-from sysid.errors import InputDataError
-from sysid.kinematics import rigid_body_terms
+from sysid.core.errors import InputDataError
+from sysid.core.kinematics import rigid_body_terms
 from sysid.models import (ALL_ROWS, LinearStructure, Parameter, builtin_structures,
                           discretize, frequency_response, load_structure, model_from_dataset,
                           model_matrices, propagate, simulate, six_dof_structure, statespace)
-from sysid.units import CONTROLS, STATES_6DOF
+from sysid.core.units import CONTROLS, STATES_6DOF
 
 
 def _random_six_dof(seed=0, delays=None):
@@ -140,7 +140,7 @@ def test_dataset_round_trip():
 
 
 def test_dataset_round_trip_through_netcdf(tmp_path):
-    io = pytest.importorskip("sysid.io")
+    io = pytest.importorskip("sysid.data.io")
     st, theta = _random_six_dof(seed=4)
     ds = st.to_dataset(theta)
     path = tmp_path / "campaign.nc"

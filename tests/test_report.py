@@ -22,10 +22,10 @@ import pytest
 import xarray as xr
 from browser import chromium  # noqa: F401  (pytest fixture)
 
-import sysid.plots
+import sysid.report.plots
 from sysid.models import frequency_response, load_structure, simulate
-from sysid.report import PAPER_PAIRS, write_report
-from sysid.validate import j_rms, theil_inequality
+from sysid.report.html import PAPER_PAIRS, write_report
+from sysid.assess.envelopes import j_rms, theil_inequality
 
 REPO = Path(__file__).resolve().parents[1]
 TRIM = {"u": 0.0, "v": 0.0, "w": 0.0, "p": 0.0, "q": 0.0, "r": 0.0, "phi": -2.87,
@@ -492,7 +492,7 @@ def _broken_figure(*args, **kwargs):
 def test_failure_midway_leaves_no_report(campaign, tmp_path, monkeypatch, capsys, processes):
     """A figure that fails, drawn inline or in a worker process: no report is left."""
     monkeypatch.setenv("SYSID_REPORT_PROCESSES", processes)
-    monkeypatch.setattr(sysid.plots, "pair_figure", _broken_figure)
+    monkeypatch.setattr(sysid.report.plots, "pair_figure", _broken_figure)
     out = tmp_path / "new" / "report"
     with pytest.raises(RuntimeError, match="plot failed"):
         write_report(campaign["tree"], out, quiet=True)
@@ -521,7 +521,7 @@ def test_browser_loads_every_figure(report, chromium):  # noqa: F811
 def test_truth_value_from_matrices_when_linearisation_has_no_parameters(campaign):
     """A linearisation without named parameters: the truth derivative is its matrix entry
     minus the identified model's fixed (kinematic) part; a delay its delay entry."""
-    from sysid.report import _truth_value
+    from sysid.report.html import _truth_value
 
     lin = campaign["lin"]
     bare = lin[["A", "B", "C", "D", "delay"]]
@@ -536,7 +536,7 @@ def test_figures_are_deterministic():
     t = np.arange(0.0, 5.0, DT)
     curves = {"q": {"truth": np.sin(t), "frequency_domain": 0.9 * np.sin(t)}}
     tic = {"frequency_domain": {"q": 0.05}}
-    pngs = [sysid.plots.png_bytes(sysid.plots.time_response_figure(
+    pngs = [sysid.report.plots.png_bytes(sysid.report.plots.time_response_figure(
         t, {"lon": np.cos(t)}, curves, {"q": "deg/s"}, "determinism", tic)) for _ in range(2)]
     assert pngs[0] == pngs[1] and pngs[0][:8] == b"\x89PNG\r\n\x1a\n"
 
@@ -564,8 +564,8 @@ def test_worker_processes_draw_the_same_figures_as_one_process(campaign, tmp_pat
 
 
 def test_report_processes_setting(monkeypatch):
-    from sysid.errors import InputDataError
-    from sysid.report import MAX_REPORT_PROCESSES, report_processes
+    from sysid.core.errors import InputDataError
+    from sysid.report.html import MAX_REPORT_PROCESSES, report_processes
 
     monkeypatch.setenv("SYSID_REPORT_PROCESSES", "3")
     assert report_processes() == 3

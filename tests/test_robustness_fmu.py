@@ -1,8 +1,8 @@
 """Hostile and foreign FMU archives, and an unstable campaign.
 
-Every hostile archive is made from the real truth-helicopter FMU (``sysid.fmu.build_fmu``,
-cached) with one thing wrong, and must be refused by :func:`sysid.fmu.load_fmu` and by the
-exported-FMU runner of :mod:`sysid.fmu_validation` with a one-line FMUError naming the archive
+Every hostile archive is made from the real truth-helicopter FMU (``sysid.truth.build_fmu``,
+cached) with one thing wrong, and must be refused by :func:`sysid.truth.load_fmu` and by the
+exported-FMU runner of :mod:`sysid.assess.exported` with a one-line FMUError naming the archive
 and the problem -- before anything is extracted: the FMU cache, the working directory, the
 temporary folder and the folders around the archive gain no file.
 
@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from sysid.errors import FMUError, SimulationDiverged
+from sysid.core.errors import FMUError, SimulationDiverged
 
 pytestmark = pytest.mark.fmu
 
@@ -193,7 +193,7 @@ def _assert_nothing_written(sandbox, before_root):
 
 @pytest.mark.parametrize("label", _CASES)
 def test_hostile_archive_is_refused_before_extraction(sandbox, label):
-    from sysid.fmu import load_fmu
+    from sysid.truth import load_fmu
 
     case = {c[0]: c for c in _hostile_cases(sandbox["members"], sandbox["marker"])}[label]
     _, build, message = case
@@ -206,7 +206,7 @@ def test_hostile_archive_is_refused_before_extraction(sandbox, label):
     _assert_nothing_written(sandbox, before)
 
     # the exported-FMU runner has its own loader: it must refuse the same way
-    from sysid.fmu_validation import simulate_exported
+    from sysid.assess.exported import simulate_exported
 
     t = np.arange(5) * 0.01
     inputs = xr.Dataset({"lon": ("time", np.zeros(5))}, coords={"time": t})
@@ -220,7 +220,7 @@ def test_hostile_archive_is_refused_before_extraction(sandbox, label):
 def test_real_zip_bomb_refused_by_declared_size(sandbox, monkeypatch):
     """A member that really inflates far beyond its compressed size (32 MB of zeros in
     ~32 kB) is refused from the sizes the archive declares, without inflating it."""
-    from sysid.fmu import _runtime, load_fmu
+    from sysid.truth import _runtime, load_fmu
 
     monkeypatch.setattr(_runtime, "MAX_ARCHIVE_BYTES", 16 << 20)
     path = write_archive(sandbox["archives"] / "bomb.fmu",
@@ -236,7 +236,7 @@ def test_real_zip_bomb_refused_by_declared_size(sandbox, monkeypatch):
 def test_valid_copy_of_the_truth_fmu_still_loads(sandbox):
     """The checks refuse the hostile archives, not a re-zipped copy of a good one; the
     extraction lands in the cache only."""
-    from sysid.fmu import load_fmu
+    from sysid.truth import load_fmu
 
     path = write_archive(sandbox["archives"] / "copy.fmu", sandbox["members"])
     model = load_fmu(path)
@@ -265,7 +265,7 @@ def foreign_fmu(sandbox):
 
 
 def test_foreign_fmu_names_missing_variables_in_cosimulation(foreign_fmu):
-    from sysid.fmu import CoSimulation, load_fmu
+    from sysid.truth import CoSimulation, load_fmu
 
     model = load_fmu(foreign_fmu)  # a valid FMI 2.0 archive: it loads
     assert model.name == "water pump"
@@ -279,7 +279,7 @@ def test_foreign_fmu_names_missing_variables_in_cosimulation(foreign_fmu):
 
 
 def test_foreign_fmu_names_missing_variables_in_trim(foreign_fmu):
-    from sysid.fmu import trim
+    from sysid.truth import trim
 
     with pytest.raises(FMUError) as info:
         trim(0.0, fmu=foreign_fmu)
@@ -292,7 +292,7 @@ def test_foreign_fmu_names_missing_variables_in_trim(foreign_fmu):
 def test_guid_mismatch_refused_at_instantiation(sandbox):
     """A description whose GUID does not match the binary: the binary's own check refuses
     it, reported as a one-line FMUError."""
-    from sysid.fmu import Instance, load_fmu
+    from sysid.truth import Instance, load_fmu
 
     md = _description(sandbox["members"])
     start = md.index('guid="{') + len('guid="{')
@@ -313,8 +313,8 @@ def test_diverging_campaign_keeps_completed_maneuvers(tmp_path, truth_fmu):
     """Stabilisation off: a small 3211 completes, then a large low-frequency sweep diverges.
     SimulationDiverged names the sweep and a time inside it; the netCDF written so far holds
     the completed 3211 (and no partial sweep)."""
-    from sysid import io
-    from sysid.maneuvers import Campaign, Maneuver, Stabilisation, run_campaign
+    from sysid.data import io
+    from sysid.flight_test.campaign import Campaign, Maneuver, Stabilisation, run_campaign
 
     campaign = Campaign(
         name="unstable", sample_rate=50.0, seed=3,

@@ -1,7 +1,7 @@
 """Fuzzed readers: malformed CSV and netCDF files end in InputDataError, never another
 exception, and a failed ``sysid`` command leaves its output as it was.
 
-The CSV fuzzer starts from a valid time history (as written by :func:`sysid.io.write_csv`, or
+The CSV fuzzer starts from a valid time history (as written by :func:`sysid.data.io.write_csv`, or
 a plain one-header-row file from another tool) and applies up to three hypothesis-chosen
 mutations: truncation, another delimiter, a lost or duplicated header, bad cells (NaN, inf,
 huge numbers, text, decimal commas), swapped, repeated or deleted rows (non-monotonic or
@@ -12,7 +12,7 @@ without ``/maneuvers``, a time coordinate of strings.
 
 Properties checked for every input:
 
-* :func:`sysid.io.read_time_history` / :func:`sysid.io.read_campaign` either succeed with a
+* :func:`sysid.data.io.read_time_history` / :func:`sysid.data.io.read_campaign` either succeed with a
   valid result (uniform increasing finite time, finite channels) or raise InputDataError
   with a one-line message;
 * ``sysid import`` and ``sysid frequency-response`` (through :func:`sysid.cli.main`) return
@@ -32,9 +32,9 @@ import xarray as xr
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from sysid import io
+from sysid.data import io
 from sysid.cli import main
-from sysid.errors import InputDataError
+from sysid.core.errors import InputDataError
 
 FUZZ = settings(max_examples=50, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow])

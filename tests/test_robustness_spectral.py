@@ -26,8 +26,8 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from scipy.signal import lfilter
 
-from sysid.errors import InputDataError
-from sysid.frequency_response import frequency_response
+from sysid.core.errors import InputDataError
+from sysid.spectral.response import frequency_response
 
 #: Deterministic, bounded hypothesis settings shared by every property of this file.
 PROPERTY = settings(max_examples=12, deadline=None, derandomize=True, database=None,

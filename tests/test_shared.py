@@ -5,11 +5,11 @@ import math
 import numpy as np
 import pytest
 
-from sysid import units
+from sysid.core import units
 from sysid.cli import main
-from sysid.errors import SysidError
-from sysid.kinematics import derivative_name, rigid_body_terms
-from sysid.util import atomic_path, rng
+from sysid.core.errors import SysidError
+from sysid.core.kinematics import derivative_name, rigid_body_terms
+from sysid.core.util import atomic_path, rng
 
 
 def test_conversions_match_definitions():
@@ -100,7 +100,7 @@ def test_atomic_path_gives_the_permissions_open_would(tmp_path):
     import os
     import stat
 
-    from sysid.util import _umask
+    from sysid.core.util import _umask
 
     fresh = tmp_path / "fresh.nc"
     with atomic_path(fresh) as tmp:

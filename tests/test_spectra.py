@@ -5,8 +5,8 @@ import pytest
 import scipy.signal
 import xarray as xr
 
-from sysid import spectra
-from sysid.errors import InputDataError
+from sysid.spectral import spectra
+from sysid.core.errors import InputDataError
 
 
 def record(channels: dict, dt: float, **attrs) -> xr.Dataset:

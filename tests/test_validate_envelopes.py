@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from sysid.errors import InputDataError
-from sysid.validate import MUAD, check_envelope, j_rms, load_envelope, mismatch, theil_inequality
+from sysid.core.errors import InputDataError
+from sysid.assess.envelopes import MUAD, check_envelope, j_rms, load_envelope, mismatch, theil_inequality
 
 OMEGA = np.logspace(-1, 2, 121)
 

@@ -12,9 +12,9 @@ import xarray as xr
 from known_systems import (PLAN_2311, PLAN_3211, TRIM, add_noise, multistep_records,
                            truth_structure)
 
-from sysid.errors import IdentificationError, InputDataError
-from sysid.validate import J_RMS_GUIDELINE, TIC_GUIDELINE
-from sysid.verify import merge_verifications, verification_table, verify, verify_maneuvers
+from sysid.core.errors import IdentificationError, InputDataError
+from sysid.assess.envelopes import J_RMS_GUIDELINE, TIC_GUIDELINE
+from sysid.assess.verification import merge_verifications, verification_table, verify, verify_maneuvers
 
 OUTPUT_BIAS = {"q": 0.7, "u": -0.3, "psi": 1.2}
 INPUT_OFFSET = {"lon": 1.5, "ped": -0.8}
@@ -135,7 +135,7 @@ def test_a_model_whose_fit_ran_away_is_reported_not_crashed_on(offset_records):
 
 
 def test_cli_identify_time_and_verify(tmp_path, capsys):
-    from sysid import io
+    from sysid.data import io
     from sysid.cli import main
 
     path = tmp_path / "campaign.nc"
@@ -180,7 +180,7 @@ def test_cli_identify_time_and_verify(tmp_path, capsys):
 
 
 def test_cli_errors(tmp_path, capsys):
-    from sysid import io
+    from sysid.data import io
     from sysid.cli import main
 
     path = tmp_path / "c.nc"
@@ -193,7 +193,7 @@ def test_cli_errors(tmp_path, capsys):
 
 
 def test_verification_group_round_trips_through_netcdf(tmp_path, truth_model, offset_records):
-    from sysid import io
+    from sysid.data import io
 
     ds = verify(truth_model, offset_records[0])
     path = tmp_path / "v.nc"

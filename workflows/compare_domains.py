@@ -27,8 +27,8 @@ METHODS = ("frequency_domain", "time_domain")
 
 def comparison(tree: xr.DataTree, verification: str = "2311_*") -> dict:
     """The section's numbers from a finished study's campaign tree."""
-    from sysid.compare import derivative_table, relative_error, sign_agreement
-    from sysid.io import list_maneuvers
+    from sysid.assess.comparison import derivative_table, relative_error, sign_agreement
+    from sysid.data.io import list_maneuvers
 
     models = {m: tree[f"models/{m}"].to_dataset() for m in METHODS
               if f"models/{m}" in _paths(tree)}
@@ -69,7 +69,7 @@ def _paths(tree: xr.DataTree) -> set[str]:
 
 
 def format_comparison(c: dict) -> str:
-    from sysid.compare import format_table
+    from sysid.assess.comparison import format_table
 
     lines = ["Frequency- against time-domain identification (paper Tables 2-3)", "",
              format_table(c["table"]), ""]
@@ -99,7 +99,7 @@ def format_comparison(c: dict) -> str:
 
 
 def write_comparison(c: dict, out: Path) -> Path:
-    from sysid.util import atomic_path
+    from sysid.core.util import atomic_path
 
     out.mkdir(parents=True, exist_ok=True)
     text_path = out / "comparison.txt"
@@ -124,7 +124,7 @@ def write_comparison(c: dict, out: Path) -> Path:
 
 
 def _csv(path: Path, rows) -> None:
-    from sysid.util import atomic_path
+    from sysid.core.util import atomic_path
 
     with atomic_path(path) as tmp:
         with open(tmp, "w", newline="") as fh:
@@ -132,7 +132,7 @@ def _csv(path: Path, rows) -> None:
 
 
 def main(argv=None) -> int:
-    from sysid.workflow import StudySettings, run_study, study_tree
+    from sysid.pipeline.study import StudySettings, run_study, study_tree
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--study", default="reports/hover", help="hover study folder")

@@ -100,7 +100,7 @@ def cross_control_section(studies: dict[str, xr.DataTree], out_dir: Path) -> Pat
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from sysid.units import CONTROLS
+    from sysid.core.units import CONTROLS
 
     out_dir.mkdir(parents=True, exist_ok=True)
     effects = {k: conditioning_effect(t) for k, t in studies.items()}
@@ -183,7 +183,7 @@ def cross_control_section(studies: dict[str, xr.DataTree], out_dir: Path) -> Pat
              "</style>")
     page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>Cross-control "
             f"coherence</title>{style}</head><body>{''.join(parts)}</body></html>")
-    from sysid.util import atomic_path
+    from sysid.core.util import atomic_path
 
     path = out_dir / "cross_control.html"
     with atomic_path(path) as tmp:
@@ -197,7 +197,7 @@ def cross_control_section(studies: dict[str, xr.DataTree], out_dir: Path) -> Pat
 
 
 def main(argv=None) -> int:
-    from sysid.workflow import StudySettings, run_study, study_tree
+    from sysid.pipeline.study import StudySettings, run_study, study_tree
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--speed", type=float, default=80.0)

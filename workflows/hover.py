@@ -11,7 +11,7 @@ report. Everything lands in reports/hover/.
 
 import sys
 
-from sysid.workflow import StudySettings, run_study
+from sysid.pipeline.study import StudySettings, run_study
 
 if __name__ == "__main__":
     report = run_study("reports/hover", StudySettings(airspeed_kt=0.0, structure="hover_6dof"),

@@ -2,7 +2,7 @@
  * A linear state-space model with per-entry input delays, plugged into the shared FMI 2.0
  * boilerplate of fmus/common (fmu_model.h). Generic: every number that belongs to one
  * exported model is in the generated headers linear_dims.h, linear_tables.h and
- * model_variables.h (written by sysid.export).
+ * model_variables.h (written by sysid.fmi.export).
  *
  *   x' = A x + sum_k B_ik u_k(t - tau_ik),   y = trim_y + C x + D (u - trim_u)
  *

@@ -14,7 +14,7 @@ import pkgutil
 import sys
 
 from sysid import __version__
-from sysid.errors import SysidError
+from sysid.core.errors import SysidError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -38,7 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    from sysid.util import blas_threads
+    from sysid.core.util import blas_threads
 
     try:
         with blas_threads():

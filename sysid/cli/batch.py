@@ -28,7 +28,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from sysid.batch import default_conditions, format_summary, load_conditions, run_batch
+    from sysid.pipeline.batch import default_conditions, format_summary, load_conditions, run_batch
     import dataclasses
 
     if args.speeds:

@@ -29,8 +29,8 @@ def register(subparsers) -> None:
 
 
 def _simulate(args) -> int:
-    from sysid.errors import InputDataError
-    from sysid.maneuvers import (Campaign, default_campaign, linear_regime_campaign,
+    from sysid.core.errors import InputDataError
+    from sysid.flight_test.campaign import (Campaign, default_campaign, linear_regime_campaign,
                                  run_campaign)
 
     if args.campaign:

@@ -18,10 +18,10 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from sysid.compare import derivative_table, format_table, sign_agreement
-    from sysid.errors import InputDataError
-    from sysid.io import read_campaign, update_campaign
-    from sysid.util import atomic_path
+    from sysid.assess.comparison import derivative_table, format_table, sign_agreement
+    from sysid.core.errors import InputDataError
+    from sysid.data.io import read_campaign, update_campaign
+    from sysid.core.util import atomic_path
 
     tree = read_campaign(args.campaign)
     if "models" not in tree or not tree["models"].children:

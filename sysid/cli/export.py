@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from sysid.errors import InputDataError, SysidError
+from sysid.core.errors import InputDataError, SysidError
 
 
 def _models(tree) -> dict[str, xr.Dataset]:
@@ -20,8 +20,8 @@ def _models(tree) -> dict[str, xr.Dataset]:
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    from sysid.export import export_fmu
-    from sysid.io import read_campaign
+    from sysid.fmi.export import export_fmu
+    from sysid.data.io import read_campaign
 
     models = _models(read_campaign(args.campaign))
     if args.model not in models:
@@ -37,7 +37,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 def _truth(tree, quiet: bool):
     """(truth FMU path, trim) or (None, reason)."""
-    from sysid.fmu import build_fmu, trim
+    from sysid.truth import build_fmu, trim
 
     airspeed = 0.0
     if "trim" in tree:
@@ -54,8 +54,8 @@ def validate_model(name: str, model: xr.Dataset, *, fmu_dir: Path, truth=None, t
                    quiet: bool = True) -> xr.Dataset:
     """Export one model and run the checks (a), (b) when ``truth`` is given, (c) when
     ``frequency_response`` is given; one Dataset for ``/validation/<name>``."""
-    from sysid.export import export_fmu
-    from sysid.fmu_validation import (compare_with_truth, envelope_check, roundtrip_error,
+    from sysid.fmi.export import export_fmu
+    from sysid.assess.exported import (compare_with_truth, envelope_check, roundtrip_error,
                                       verification_inputs)
 
     path = export_fmu(model, fmu_dir / f"{name}.fmu", model_name=f"sysid_{name}", quiet=quiet)
@@ -89,8 +89,8 @@ def validate_model(name: str, model: xr.Dataset, *, fmu_dir: Path, truth=None, t
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
-    from sysid.io import read_campaign, update_campaign
-    from sysid.validate import MUAD
+    from sysid.data.io import read_campaign, update_campaign
+    from sysid.assess.envelopes import MUAD
 
     tree = read_campaign(args.campaign)
     models = _models(tree)

@@ -10,21 +10,21 @@ _CONTROLS = ("lon", "lat", "col", "ped")
 
 
 def _cmd_build(args: argparse.Namespace) -> int:
-    from sysid.fmu import build_fmu
+    from sysid.truth import build_fmu
 
     print(build_fmu(force=args.force))
     return 0
 
 
 def _cmd_trim(args: argparse.Namespace) -> int:
-    from sysid.fmu import trim
+    from sysid.truth import trim
 
     print(trim(args.speed).table())
     return 0
 
 
 def _table(ds, columns, title: str) -> list[str]:
-    from sysid.kinematics import FORCE_LETTER
+    from sysid.core.kinematics import FORCE_LETTER
 
     value = ds["value"]
     lines = [title, f"{'':>4}" + "".join(f"{c:>12}" for c in columns)]
@@ -48,7 +48,7 @@ def _eigen_lines(ev, title: str) -> list[str]:
 
 
 def _cmd_linearize(args: argparse.Namespace) -> int:
-    from sysid.fmu import linearize, trim
+    from sysid.truth import linearize, trim
 
     lin = linearize(trim(args.speed))
     ds = lin.quasi_steady

@@ -2,7 +2,7 @@
 
 Reads the manoeuvres ``/maneuvers/<name>`` of a campaign file matching ``--maneuvers``
 (default ``sweep_*``), concatenates them CIFER-style, computes the conditioned composite
-frequency responses of every input/output pair (:func:`sysid.frequency_response.frequency_response`)
+frequency responses of every input/output pair (:func:`sysid.spectral.response.frequency_response`)
 and writes them to the group ``/frequency_response`` of the same file (atomically), plus the
 per-window results to ``/frequency_response_windows`` with ``--keep-windows``. Prints one line
 per pair: the frequency range where the (partial) coherence is at least 0.6 and its mean.
@@ -14,7 +14,7 @@ import fnmatch
 
 import numpy as np
 
-from sysid.errors import InputDataError
+from sysid.core.errors import InputDataError
 
 #: Coherence guideline for a usable frequency range (methods.md).
 COHERENCE_GUIDELINE = 0.6
@@ -87,10 +87,10 @@ def summary_lines(ds) -> list[str]:
 
 
 def run(args) -> int:
-    from sysid.frequency_response import frequency_response
-    from sysid.io import read_campaign, update_campaign
-    from sysid.spectra import DEFAULT_C_EPS
-    from sysid.util import Progress
+    from sysid.spectral.response import frequency_response
+    from sysid.data.io import read_campaign, update_campaign
+    from sysid.spectral.spectra import DEFAULT_C_EPS
+    from sysid.core.util import Progress
 
     progress = Progress(quiet=args.quiet)
     tree = read_campaign(args.campaign)

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import argparse
 
-from sysid.errors import InputDataError
+from sysid.core.errors import InputDataError
 
 
 def register(subparsers) -> None:
@@ -55,7 +55,7 @@ def register(subparsers) -> None:
 
 def _trim(tree) -> dict[str, float]:
     """``channel -> trim`` from the frequency-response group, the root or a manoeuvre."""
-    from sysid.io import trim_from_attrs
+    from sysid.data.io import trim_from_attrs
 
     sources = [tree[g].attrs for g in ("frequency_response",) if g in tree] + [tree.attrs]
     if "maneuvers" in tree and tree["maneuvers"].children:
@@ -84,11 +84,11 @@ def _linearization(tree, states):
 
 
 def run(args: argparse.Namespace) -> int:
-    # sysid.io is owned by another stage; imported lazily so the CLI loads without it.
+    # sysid.data.io is owned by another stage; imported lazily so the CLI loads without it.
     from sysid.identify.frequency_domain import identify_frequency_domain
-    from sysid.io import read_campaign, update_campaign
+    from sysid.data.io import read_campaign, update_campaign
     from sysid.models import load_structure
-    from sysid.util import Progress
+    from sysid.core.util import Progress
 
     tree = read_campaign(args.campaign)
     if "frequency_response" not in tree:
@@ -127,7 +127,7 @@ def _band(text: str | None) -> tuple[float, float] | None:
     """``"0.1,8"`` -> ``(0.1, 8.0)`` rad/s."""
     if text is None:
         return None
-    from sysid.errors import InputDataError
+    from sysid.core.errors import InputDataError
 
     try:
         lo, hi = (float(v) for v in text.split(","))

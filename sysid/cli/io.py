@@ -9,8 +9,8 @@ from pathlib import Path
 import xarray as xr
 
 from sysid import __version__
-from sysid import io
-from sysid.errors import InputDataError
+from sysid.data import io
+from sysid.core.errors import InputDataError
 
 
 def _pairs(values: list[str] | None, option: str) -> dict[str, str]:

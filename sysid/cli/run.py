@@ -30,7 +30,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from sysid.workflow import StudySettings, run_study
+    from sysid.pipeline.study import StudySettings, run_study
 
     speed, structure, folder = STUDIES[args.study]
     settings = StudySettings(

@@ -20,17 +20,17 @@ structure's values.
                  [--estimate bias,reference_shift] [--quiet]
 
 simulates each model with the recorded inputs of each selected manoeuvre, estimating only
-output biases and input reference shifts (:func:`sysid.verify.verify`), stores
+output biases and input reference shifts (:func:`sysid.assess.verification.verify`), stores
 ``/verification/<maneuver>`` (merged with the sources already there) and prints J_rms and
-TIC per output with PASS/FAIL against :data:`sysid.validate.J_RMS_GUIDELINE` and
-:data:`sysid.validate.TIC_GUIDELINE`.
+TIC per output with PASS/FAIL against :data:`sysid.assess.envelopes.J_RMS_GUIDELINE` and
+:data:`sysid.assess.envelopes.TIC_GUIDELINE`.
 """
 
 from __future__ import annotations
 
 import argparse
 
-from sysid.errors import InputDataError
+from sysid.core.errors import InputDataError
 
 
 def register(subparsers) -> None:
@@ -79,7 +79,7 @@ def register(subparsers) -> None:
 
 def _trim(records) -> dict[str, float]:
     """``channel -> trim`` from the first record that has ``trim_<channel>``."""
-    from sysid.io import trim_from_attrs
+    from sysid.data.io import trim_from_attrs
 
     return trim_from_attrs(records)
 
@@ -95,7 +95,7 @@ def _has(tree, path: str) -> bool:
 
 
 def _selected(tree, pattern: str, path: str):
-    from sysid.io import list_maneuvers, maneuvers
+    from sysid.data.io import list_maneuvers, maneuvers
 
     names = list_maneuvers(tree, pattern)
     if not names:
@@ -127,9 +127,9 @@ def _start(tree, structure, kind: str, path: str, progress):
 
 def run_identify(args: argparse.Namespace) -> int:
     from sysid.identify.time_domain import identify_time_domain
-    from sysid.io import read_campaign, update_campaign
+    from sysid.data.io import read_campaign, update_campaign
     from sysid.models import load_structure
-    from sysid.util import Progress
+    from sysid.core.util import Progress
 
     tree = read_campaign(args.campaign)
     names, records = _selected(tree, args.maneuvers, args.campaign)
@@ -151,9 +151,9 @@ def run_identify(args: argparse.Namespace) -> int:
 
 
 def run_verify(args: argparse.Namespace) -> int:
-    from sysid.io import read_campaign, update_campaign
-    from sysid.util import Progress
-    from sysid.verify import ESTIMATES, merge_verifications, verification_table, verify
+    from sysid.data.io import read_campaign, update_campaign
+    from sysid.core.util import Progress
+    from sysid.assess.verification import ESTIMATES, merge_verifications, verification_table, verify
 
     progress = Progress(quiet=args.quiet)
     tree = read_campaign(args.campaign)

@@ -52,13 +52,13 @@ import numpy as np
 import scipy.optimize
 import xarray as xr
 
-from sysid.errors import IdentificationError, InputDataError
+from sysid.core.errors import IdentificationError, InputDataError
 from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
                                       stepwise_reduction)
 from sysid.identify.statistics import (FitResultParameters, ParameterStatistics,
                                       parameter_rows, parameter_statistics, perturbed_start)
 from sysid.models import LinearStructure
-from sysid.util import Progress
+from sysid.core.util import Progress
 
 __all__ = [
     "DEFAULT_PAIRS",

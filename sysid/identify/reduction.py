@@ -127,7 +127,7 @@ def stepwise_reduction(fit: Callable[[tuple[str, ...], FitOutcome], FitOutcome],
         Parameters never removed.
     max_steps : int, optional
         Limit on attempted removals (default: number of free parameters).
-    progress : sysid.util.Progress, optional
+    progress : sysid.core.util.Progress, optional
         Receives one line per step.
 
     Returns

@@ -88,7 +88,7 @@ import scipy.linalg
 import scipy.optimize
 import xarray as xr
 
-from sysid.errors import IdentificationError, InputDataError
+from sysid.core.errors import IdentificationError, InputDataError
 from sysid.identify.reduction import GUIDELINES, FitOutcome, ReductionResult, stepwise_reduction
 from sysid.identify.statistics import (FitResultParameters, ParameterStatistics,
                                       parameter_rows, parameter_statistics, perturbed_start)
@@ -193,10 +193,10 @@ def prepare_records(records: Sequence[xr.Dataset], structure: LinearStructure,
                     outputs: Sequence[str]) -> list[TimeRecord]:
     """Check the time histories and turn them into perturbation arrays.
 
-    Raises :class:`~sysid.errors.InputDataError` naming the manoeuvre and channel when an
+    Raises :class:`~sysid.core.errors.InputDataError` naming the manoeuvre and channel when an
     input or output is missing, not finite, or the time grid is not uniform.
     """
-    from sysid.io import validate_time_history
+    from sysid.data.io import validate_time_history
 
     if isinstance(records, xr.Dataset):
         records = [records]
@@ -843,7 +843,7 @@ def identify_time_domain(records, structure: LinearStructure, *,
     -------
     TimeFitResult
     """
-    from sysid.util import Progress
+    from sysid.core.util import Progress
 
     t_start = time.perf_counter()
     progress = progress or Progress(quiet=quiet)

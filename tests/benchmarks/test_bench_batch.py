@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from sysid.batch import Condition, conditions, run_batch
+from sysid.pipeline.batch import Condition, conditions, run_batch
 
 
 def _conditions():

@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from sysid.maneuvers import default_campaign, run_campaign
+from sysid.flight_test.campaign import default_campaign, run_campaign
 
 pytestmark = pytest.mark.fmu
 

@@ -16,8 +16,8 @@ import time
 import numpy as np
 import xarray as xr
 
-from sysid import io
-from sysid.units import channel_attrs
+from sysid.data import io
+from sysid.core.units import channel_attrs
 
 CHANNELS = ("lon", "lat", "col", "ped", "u", "v", "w", "p", "q", "r", "phi", "theta", "psi")
 

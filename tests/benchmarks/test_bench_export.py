@@ -14,7 +14,7 @@ import time
 
 import pytest
 
-from sysid.export import export_fmu
+from sysid.fmi.export import export_fmu
 from sysid.models import six_dof_structure
 
 SIM_SECONDS = 20.0

@@ -16,7 +16,7 @@ SIM_SECONDS = 20.0
 
 @pytest.fixture(scope="module")
 def sim(truth_fmu):
-    from sysid.fmu import CoSimulation
+    from sysid.truth import CoSimulation
 
     with CoSimulation(truth_fmu) as s:
         yield s

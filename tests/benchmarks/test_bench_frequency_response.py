@@ -17,7 +17,7 @@ import scipy.signal
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import linear_systems as ls  # noqa: E402
 
-from sysid.frequency_response import frequency_response  # noqa: E402
+from sysid.spectral.response import frequency_response  # noqa: E402
 
 INPUTS = ["lon", "lat", "col", "ped"]
 OUTPUTS = ["u", "v", "w", "p", "q", "r", "phi", "theta", "psi"]

@@ -1,0 +1,757 @@
+"""Many flight conditions (and Monte Carlo seeds) on Dask: the whole study per condition.
+
+:func:`run_batch` runs :func:`sysid.pipeline.study.run_study` once per :class:`Condition` (airspeed,
+seed, noise, structure), independently of the others and in its own folder. Each study is
+four Dask tasks, one per part of :data:`sysid.pipeline.study.PARTS`: the data (campaign and
+frequency responses), then the frequency- and the time-domain fits side by side, then the
+results (verification, comparison, export, report)::
+
+    <out>/<condition>/          the condition's study (campaign.nc, FMUs, report.html)
+    <out>/<condition>/condition.json   what ran and how it ended (the resume marker)
+    <out>/<condition>/study_<part>.log the stages' printed tables, one log per part
+    <out>/batch.nc              every condition's results on one ``condition`` dimension
+    <out>/batch_derivatives.png every derivative against airspeed: identified values with
+                                Cramer-Rao bars, the truth linearisation overlaid
+    <out>/monte_carlo.nc, monte_carlo.txt   with several seeds per airspeed: observed scatter
+                                of each estimate against its mean Cramer-Rao bound
+    <out>/batch_summary.txt     one line per condition (status, time, J_ave, error)
+
+Where it runs: a :class:`distributed.LocalCluster` of ``n_workers`` processes with one thread
+each by default; with ``scheduler="tcp://host:port"`` the tasks go to that existing Dask
+scheduler instead (its workers need ``sysid`` installed and must see ``out`` at the same path,
+e.g. a shared file system).
+
+Fault tolerance: a task catches every exception of its condition (trim failure, diverging
+simulation, non-converging fit) and returns it as a failure record (error type and message),
+so one bad condition never stops the others; a worker that dies is reported the same way.
+Resume: a condition whose folder holds a completed study with the same settings (its
+``condition.json`` says ``ok`` and ``report.html`` exists) is not recomputed; a failed or
+interrupted one is re-run, and :func:`run_study`'s per-stage cache reuses whatever it had
+finished (e.g. the campaign).
+
+Structures: below :data:`FORWARD_FLIGHT_KT` the quasi-steady hover structure ``hover_6dof``,
+from there the forward-flight structure ``forward_6dof`` (the speed-dependent derivatives
+M_w, Z_u, L_v, N_v ... free); a condition or a speeds file can name another.
+
+The ``batch.nc`` Dataset (dims ``condition``, ``model`` (the identification method), ``parameter``):
+
+- coords on ``condition``: ``airspeed_kt``, ``seed``, ``noise`` (0/1), ``structure``,
+  ``status`` (``ok``/``failed``), ``error`` (type: message, "" when ok), ``elapsed_s``;
+- ``value``, ``cramer_rao`` (absolute), ``cramer_rao_percent`` (condition, model, parameter):
+  identified parameters (derivatives and delays), NaN where a method did not estimate it;
+- ``truth`` (condition, parameter): the truth model's quasi-steady linearisation at the
+  condition (NaN for delays);
+- ``J_ave`` (condition, model); ``j_rms`` (condition, model): mean verification J_rms.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import math
+import time
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+import xarray as xr
+
+from sysid.core.errors import InputDataError, SysidError
+from sysid.models import parameter_values
+from sysid.core.util import Progress, atomic_path
+
+#: Default flight conditions, kt (the issue's list).
+DEFAULT_SPEEDS = (0.0, 20.0, 40.0, 60.0, 80.0, 100.0)
+#: From this airspeed (kt) up the forward-flight structure is used.
+FORWARD_FLIGHT_KT = 30.0
+#: Methods whose models the batch collects.
+METHODS = ("frequency_domain", "time_domain")
+
+
+def structure_for(airspeed_kt: float) -> str:
+    """The built-in structure used at ``airspeed_kt`` when none is named."""
+    return "hover_6dof" if airspeed_kt < FORWARD_FLIGHT_KT else "forward_6dof"
+
+
+@dataclass(frozen=True)
+class Condition:
+    """One flight condition / Monte Carlo sample.
+
+    ``quick`` flies a reduced campaign (one sweep record per axis instead of two, plus the
+    3211 and 2311 multisteps) for faster checks; results are noisier than with the full
+    campaign. (Shorter sweeps were tried: 45-s sweeps from 0.3 rad/s left the hover roll
+    derivatives unidentifiable.)
+    """
+
+    airspeed_kt: float
+    seed: int = 20261121
+    noise: bool = True
+    structure: str | None = None
+    quick: bool = False
+
+    @property
+    def name(self) -> str:
+        text = f"{self.airspeed_kt:g}kt_seed{self.seed}"
+        if not self.noise:
+            text += "_nonoise"
+        if self.quick:
+            text += "_quick"
+        if self.structure:
+            text += "_" + Path(str(self.structure)).stem
+        return text
+
+    @property
+    def structure_name(self) -> str:
+        return self.structure or structure_for(self.airspeed_kt)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def conditions(speeds: Iterable[float] = DEFAULT_SPEEDS, seeds: Iterable[int] = (20261121,),
+               *, noise: bool = True, quick: bool = False,
+               structures: dict[str, tuple[float, float]] | None = None) -> list[Condition]:
+    """Every (speed, seed) combination as a :class:`Condition`.
+
+    ``structures`` maps a structure (built-in name or TOML path) to an airspeed band
+    ``[from, to)`` in kt; speeds outside every band use :func:`structure_for`.
+    """
+    out = []
+    for v in speeds:
+        structure = None
+        for name, (lo, hi) in (structures or {}).items():
+            if lo <= v < hi:
+                structure = name
+                break
+        for s in seeds:
+            out.append(Condition(float(v), int(s), bool(noise), structure, bool(quick)))
+    return out
+
+
+def load_conditions(path: str | Path) -> list[Condition]:
+    """Conditions from a speeds TOML file::
+
+        speeds = [0, 20, 40, 60, 80, 100]   # kt
+        seeds = [20261121, 1, 2]            # one condition per speed and seed (default one)
+        noise = true                        # sensor noise and turbulence (default true)
+        quick = false                       # reduced campaign (default false)
+
+        [structures]                        # optional: structure -> airspeed band [from, to) kt
+        hover_6dof = [0, 30]
+        forward_6dof = [30, 200]
+
+        [[conditions]]                      # optional: extra single conditions
+        airspeed_kt = 50
+        seed = 7
+        structure = "my_structure.toml"
+    """
+    path = Path(path)
+    try:
+        spec = tomllib.loads(path.read_text())
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise InputDataError(f"cannot read speeds file {path}: {exc}") from None
+    known = {"speeds", "seeds", "noise", "quick", "structures", "conditions"}
+    unknown = set(spec) - known
+    if unknown:
+        raise InputDataError(f"speeds file {path}: unknown keys {sorted(unknown)}; "
+                             f"known: {sorted(known)}")
+    try:
+        speeds = [float(v) for v in spec.get("speeds", [])]
+        seeds = [int(s) for s in spec.get("seeds", [20261121])]
+        bands = {str(k): (float(v[0]), float(v[1]))
+                 for k, v in dict(spec.get("structures", {})).items()}
+    except (TypeError, ValueError, IndexError) as exc:
+        raise InputDataError(f"speeds file {path}: speeds must be numbers (kt), seeds "
+                             f"integers and structures name = [from, to] in kt ({exc})") from None
+    out = conditions(speeds, seeds, noise=bool(spec.get("noise", True)),
+                     quick=bool(spec.get("quick", False)), structures=bands)
+    fields = {f.name for f in dataclasses.fields(Condition)}
+    for k, item in enumerate(spec.get("conditions", [])):
+        bad = set(item) - fields
+        if bad or "airspeed_kt" not in item:
+            raise InputDataError(f"speeds file {path}: [[conditions]] entry {k + 1} needs "
+                                 f"airspeed_kt and only {sorted(fields)}; got {sorted(item)}")
+        out.append(Condition(**item))
+    if not out:
+        raise InputDataError(f"speeds file {path}: no conditions (give speeds = [...] or "
+                             f"[[conditions]])")
+    return out
+
+
+# -----------------------------------------------------------------------------------------
+# One condition (runs inside a Dask worker)
+# -----------------------------------------------------------------------------------------
+def quick_campaign(airspeed_kt: float, *, noise: bool, seed: int):
+    """The default campaign reduced for fast checks (see :class:`Condition`)."""
+    from sysid.flight_test.campaign import default_campaign
+
+    full = default_campaign(airspeed_kt, noise=noise, seed=seed)
+    kept = [m for m in full.maneuvers if m.kind != "sweep" or m.name.endswith("_1")]
+    return dataclasses.replace(full, name=full.name + "_quick", maneuvers=kept)
+
+
+def study_settings(condition: Condition, folder: str | Path):
+    """The :class:`~sysid.pipeline.study.StudySettings` of ``condition`` (writes the quick campaign
+    TOML into ``folder`` when ``quick``)."""
+    from sysid.pipeline.study import StudySettings
+
+    campaign_file = None
+    if condition.quick:
+        campaign = quick_campaign(condition.airspeed_kt, noise=condition.noise,
+                                  seed=condition.seed)
+        campaign_file = Path(folder) / "campaign.toml"
+        campaign_file.parent.mkdir(parents=True, exist_ok=True)
+        text = campaign.to_toml()
+        if not campaign_file.exists() or campaign_file.read_text() != text:
+            with atomic_path(campaign_file) as tmp:
+                tmp.write_text(text)
+        campaign_file = str(campaign_file)
+    return StudySettings(airspeed_kt=condition.airspeed_kt, seed=condition.seed,
+                         noise=condition.noise, structure=condition.structure_name,
+                         campaign_file=campaign_file)
+
+
+def _marker(folder: Path) -> Path:
+    return folder / "condition.json"
+
+
+def _write_marker(folder: Path, record: dict) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    with atomic_path(_marker(folder)) as tmp:
+        tmp.write_text(json.dumps(record, indent=1))
+
+
+def completed(condition: Condition, folder: str | Path) -> bool:
+    """True when ``folder`` holds a finished study of exactly ``condition``."""
+    folder = Path(folder)
+    try:
+        record = json.loads(_marker(folder).read_text())
+    except (OSError, ValueError):
+        return False
+    return (record.get("status") == "ok" and record.get("condition") == condition.to_dict()
+            and (folder / "report.html").exists() and (folder / "campaign.nc").exists())
+
+
+def run_condition(spec: dict, folder: str, fail: str | None = None) -> dict:
+    """Run one condition's whole study in ``folder``, its parts one after another; never
+    raises. Returns the record of :func:`run_condition_part`'s last part."""
+    from sysid.pipeline.study import PARTS
+
+    records: dict[str, dict] = {}
+    for part in PARTS:
+        records[part] = run_condition_part(spec, folder, part, fail,
+                                           *(records[n] for n in PART_NEEDS[part]))
+    return records[PARTS[-1]]
+
+
+#: The parts of a study each part needs (``sysid.pipeline.study.PARTS``): the two fits read only
+#: the data, so they run as separate tasks at the same time.
+PART_NEEDS = {"data": (), "frequency_domain": ("data",), "time_domain": ("data",),
+              "results": ("frequency_domain", "time_domain")}
+
+
+def run_condition_part(spec: dict, folder: str, part: str, fail: str | None = None,
+                       *upstream: dict) -> dict:
+    """One part of one condition's study in ``folder`` (a Dask task); never raises.
+
+    ``upstream`` are the records of the parts this one needs (:data:`PART_NEEDS`, in Dask
+    the results of their tasks): if one of them failed, this part does not run and passes
+    that failure on. ``fail`` (for fault-injection tests) raises the named exception class
+    of :mod:`sysid.core.errors` before the ``data`` part starts. The ``results`` part writes the
+    resume marker ``condition.json``, also for a failure that happened upstream.
+
+    Returns ``{"name", "condition", "status": "ok"|"failed", "error_type", "message",
+    "part_elapsed_s": {part: s}, "elapsed_s" (their sum), "summary": Dataset|None}``.
+    """
+    import dask
+
+    from sysid.core import errors
+    from sysid.pipeline.study import run_study
+
+    condition = Condition(**spec)
+    folder_path = Path(folder)
+    part_elapsed: dict[str, float] = {}
+    for previous in upstream:
+        part_elapsed.update(previous.get("part_elapsed_s", {}))
+    record = {"name": condition.name, "condition": condition.to_dict(), "status": "ok",
+              "error_type": "", "message": "", "summary": None}
+    failed = [r for r in upstream if r["status"] != "ok"]
+    start = time.perf_counter()
+    if failed:
+        record.update({k: failed[0][k] for k in ("status", "error_type", "message")})
+    else:
+        try:
+            if fail and part == "data":
+                raise getattr(errors, fail)(f"injected failure for condition {condition.name}")
+            folder_path.mkdir(parents=True, exist_ok=True)
+            # The stages' tables go to the part's own log, not the worker's terminal. Inside
+            # a Dask worker xarray would guard every netCDF access with a lock held by the
+            # scheduler (a network round trip per variable): a part took 2.3x as long and
+            # kept the scheduler's process busy. The part's own I/O needs no cluster lock
+            # (update_campaign locks the folder), so it runs on the local scheduler.
+            with open(folder_path / f"study_{part}.log", "w") as log, \
+                    contextlib.redirect_stdout(log), contextlib.redirect_stderr(log), \
+                    dask.config.set(scheduler="synchronous"):
+                run_study(folder_path, study_settings(condition, folder_path), quiet=True,
+                          parts=(part,))
+            if part == "results":
+                record["summary"] = condition_summary(folder_path)
+        except Exception as exc:  # noqa: BLE001 - the batch must survive any condition
+            record.update(status="failed", error_type=type(exc).__name__,
+                          message=str(exc).splitlines()[0] if str(exc) else repr(exc))
+        part_elapsed[part] = time.perf_counter() - start
+    record["part_elapsed_s"] = part_elapsed
+    record["elapsed_s"] = sum(part_elapsed.values())
+    if part == "results":
+        try:
+            _write_marker(folder_path, {k: v for k, v in record.items() if k != "summary"})
+        except OSError:
+            pass
+    return record
+
+
+def condition_summary(folder: str | Path) -> xr.Dataset:
+    """Identified parameters, CR bounds, costs and truth of one finished study.
+
+    Dims ``model`` (method) and ``parameter``; see the module docstring for the variables.
+    """
+    from sysid.data.io import read_campaign
+
+    tree = read_campaign(Path(folder) / "campaign.nc")
+    models = {}
+    for method in METHODS:
+        try:
+            models[method] = tree[f"models/{method}"].to_dataset()
+        except KeyError:
+            continue
+    if not models:
+        raise SysidError(f"{folder}: the study has no identified model")
+    try:
+        truth = tree["linearization"].to_dataset()
+    except KeyError:
+        truth = None
+    names: list[str] = []
+    for model in models.values():
+        names += [str(p) for p, f in zip(model.parameter.values, model["free"].values)
+                  if bool(f) and str(p) not in names]
+    if truth is not None:
+        names += [str(p) for p in truth.parameter.values if str(p) not in names]
+    methods = list(models)
+    value = np.full((len(methods), len(names)), np.nan)
+    cr = np.full_like(value, np.nan)
+    crp = np.full_like(value, np.nan)
+    j_ave = np.full(len(methods), np.nan)
+    for i, (method, model) in enumerate(models.items()):
+        index = {str(p): k for k, p in enumerate(model.parameter.values)}
+        for j, name in enumerate(names):
+            k = index.get(name)
+            if k is None or not bool(model["free"].values[k]):
+                continue
+            value[i, j] = float(model["value"].values[k])
+            if "cramer_rao" in model:
+                cr[i, j] = float(model["cramer_rao"].values[k])
+            if "cramer_rao_percent" in model:
+                crp[i, j] = float(model["cramer_rao_percent"].values[k])
+        j_ave[i] = float(model.attrs.get("J_ave", np.nan))
+    truth_values = parameter_values(truth, names)
+    j_rms = np.full(len(methods), np.nan)
+    try:
+        verification = [child.to_dataset() for child in tree["verification"].children.values()]
+    except KeyError:
+        verification = []
+    for i, method in enumerate(methods):
+        values = [float(v["j_rms"].sel(source=method)) for v in verification
+                  if "j_rms" in v and method in v["j_rms"].source.values]
+        if values:
+            j_rms[i] = float(np.mean(values))
+    dims = ("model", "parameter")
+    return xr.Dataset(
+        {"value": (dims, value), "cramer_rao": (dims, cr),
+         "cramer_rao_percent": (dims, crp, {"units": "%"}),
+         "truth": (("parameter",), truth_values,
+                   {"long_name": "truth model's quasi-steady linearisation"}),
+         "J_ave": (("model",), j_ave, {"long_name": "average frequency-domain cost"}),
+         "j_rms": (("model",), j_rms,
+                   {"long_name": "mean J_rms over the verification manoeuvres"})},
+        coords={"model": methods, "parameter": names})
+
+
+# -----------------------------------------------------------------------------------------
+# The batch
+# -----------------------------------------------------------------------------------------
+@dataclass
+class BatchResult:
+    """What :func:`run_batch` produced."""
+
+    dataset: xr.Dataset
+    records: list[dict]
+    wall_time_s: float
+    out_dir: Path
+    monte_carlo: xr.Dataset | None = None
+    figure: Path | None = None
+
+    @property
+    def failures(self) -> list[dict]:
+        return [r for r in self.records if r["status"] != "ok"]
+
+    @property
+    def succeeded(self) -> list[str]:
+        return [r["name"] for r in self.records if r["status"] == "ok"]
+
+
+def _client(scheduler: str | None, n_workers: int, quiet: bool):
+    import logging
+
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        return Client(scheduler), None
+    # One BLAS thread per worker process: the workers already use every core.
+    env = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                           dashboard_address=":0", env=env,
+                           silence_logs=logging.ERROR if quiet else logging.WARNING)
+    return Client(cluster), cluster
+
+
+def _submit_condition(client, condition: Condition, folder: Path, fail: str | None):
+    """Submit one condition's study as one Dask task per part (:data:`PART_NEEDS`); return
+    the future of its last part. Finer tasks than whole studies keep both workers busy to
+    the end of the batch (the two fits of a condition run side by side)."""
+    from sysid.pipeline.study import PARTS
+
+    stamp = time.time_ns()
+    tasks: dict = {}
+    for part in PARTS:
+        tasks[part] = client.submit(run_condition_part, condition.to_dict(), str(folder), part,
+                                    fail, *(tasks[n] for n in PART_NEEDS[part]), pure=False,
+                                    key=f"sysid-{part}-{condition.name}-{stamp}")
+    return tasks[PARTS[-1]]
+
+
+def run_batch(conditions: Sequence[Condition], out_dir: str | Path, *,
+              scheduler: str | None = None, n_workers: int = 2, quiet: bool = False,
+              inject_failure: dict[str, str] | None = None) -> BatchResult:
+    """Run every condition's study as a Dask task; combine, plot and summarise (module doc).
+
+    ``inject_failure`` maps a condition name to an exception class name of
+    :mod:`sysid.core.errors` raised inside its task (fault-tolerance tests).
+    """
+    from sysid import truth as fmu
+
+    conditions = list(conditions)
+    if not conditions:
+        raise InputDataError("run_batch: no conditions given")
+    names = [c.name for c in conditions]
+    duplicated = sorted({n for n in names if names.count(n) > 1})
+    if duplicated:
+        raise InputDataError(f"run_batch: duplicated conditions {duplicated}")
+    if n_workers < 1:
+        raise InputDataError(f"run_batch: n_workers must be >= 1, got {n_workers}")
+    out = Path(out_dir).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    progress = Progress(quiet=quiet)
+    inject_failure = dict(inject_failure or {})
+    start = time.perf_counter()
+    records: dict[str, dict] = {}
+
+    # Resume: finished conditions are read back, not recomputed.
+    todo = []
+    for c in conditions:
+        folder = out / c.name
+        if completed(c, folder) and c.name not in inject_failure:
+            record = json.loads(_marker(folder).read_text())
+            try:
+                record["summary"] = condition_summary(folder)
+            except Exception:  # noqa: BLE001 - unreadable: recompute it
+                todo.append(c)
+                continue
+            records[c.name] = record
+            progress.message(f"[batch] {c.name}: done earlier (resumed from {folder})")
+        else:
+            todo.append(c)
+
+    if todo:
+        fmu.build_fmu()  # once here, so workers never race to build the truth FMU
+        client, cluster = _client(scheduler, n_workers, quiet)
+        try:
+            from distributed import as_completed
+
+            futures = {}
+            for c in todo:
+                futures[_submit_condition(client, c, out / c.name,
+                                          inject_failure.get(c.name))] = c
+            done = 0
+            for fut in as_completed(futures):
+                c = futures[fut]
+                try:
+                    record = fut.result()
+                except Exception as exc:  # noqa: BLE001 - e.g. a worker died (KilledWorker)
+                    record = {"name": c.name, "condition": c.to_dict(), "status": "failed",
+                              "error_type": type(exc).__name__, "message": str(exc),
+                              "elapsed_s": float("nan"), "summary": None}
+                records[c.name] = record
+                done += 1
+                if record["status"] == "ok":
+                    j = record["summary"]["J_ave"]
+                    costs = "  ".join(f"J_ave {m} {float(j.sel(model=m)):.1f}"
+                                      for m in j.model.values)
+                    progress.message(f"[batch] {done}/{len(todo)} {c.name}: ok in "
+                                     f"{record['elapsed_s']:.0f} s  {costs}")
+                else:
+                    progress.message(f"[batch] {done}/{len(todo)} {c.name}: FAILED "
+                                     f"{record['error_type']}: {record['message']}")
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+
+    ordered = [records[c.name] for c in conditions]
+    dataset = combine(conditions, ordered)
+    wall = time.perf_counter() - start
+    dataset.attrs.update(wall_time_s=round(wall, 2),
+                         n_workers=0 if scheduler else int(n_workers),
+                         scheduler=scheduler or "LocalCluster")
+    with atomic_path(out / "batch.nc") as tmp:
+        dataset.to_netcdf(tmp)
+    figure = plot_derivatives(dataset, out / "batch_derivatives.png")
+    mc = monte_carlo(dataset)
+    if mc is not None:
+        with atomic_path(out / "monte_carlo.nc") as tmp:
+            mc.to_netcdf(tmp)
+        with atomic_path(out / "monte_carlo.txt") as tmp:
+            tmp.write_text(format_monte_carlo(mc) + "\n")
+    with atomic_path(out / "batch_summary.txt") as tmp:
+        tmp.write_text(format_summary(dataset) + "\n")
+    failed = [r for r in ordered if r["status"] != "ok"]
+    progress.message(f"[batch] {len(ordered) - len(failed)}/{len(ordered)} conditions ok "
+                     f"in {wall:.0f} s; results in {out / 'batch.nc'}")
+    return BatchResult(dataset, ordered, wall, out, mc, figure)
+
+
+def combine(conditions: Sequence[Condition], records: Sequence[dict]) -> xr.Dataset:
+    """One Dataset on a ``condition`` dimension from the per-condition records."""
+    names = [c.name for c in conditions]
+    parts = [r["summary"].expand_dims(condition=[r["name"]]) for r in records
+             if r["status"] == "ok" and r.get("summary") is not None]
+    if parts:
+        ds = xr.concat(parts, dim="condition", join="outer", data_vars="all",
+                       coords="different", compat="equals", fill_value=np.nan)
+        # Parameters in a physically meaningful order: A derivatives, B, then delays.
+        ds = ds.reindex(condition=names, parameter=_order(ds.parameter.values))
+    else:
+        ds = xr.Dataset(coords={"condition": names})
+    by_name = {r["name"]: r for r in records}
+    ds = ds.assign_coords(
+        airspeed_kt=("condition", [c.airspeed_kt for c in conditions], {"units": "kt"}),
+        seed=("condition", [c.seed for c in conditions]),
+        noise=("condition", np.array([int(c.noise) for c in conditions], dtype="int8")),
+        quick=("condition", np.array([int(c.quick) for c in conditions], dtype="int8")),
+        structure=("condition", [c.structure_name for c in conditions]),
+        status=("condition", [by_name[n]["status"] for n in names]),
+        error=("condition", [(f"{by_name[n]['error_type']}: {by_name[n]['message']}"
+                              if by_name[n]["status"] != "ok" else "") for n in names]),
+        elapsed_s=("condition", [float(by_name[n].get("elapsed_s", np.nan)) for n in names],
+                   {"units": "s"}))
+    ds.attrs.update(long_name="identification results per flight condition (sysid.pipeline.batch)",
+                    n_conditions=len(names), n_failed=int(sum(r["status"] != "ok"
+                                                              for r in records)))
+    return ds
+
+
+def _order(parameters) -> list[str]:
+    from sysid.core.units import CONTROLS
+
+    def key(name: str):
+        if name.startswith("tau_"):
+            return (2, name)
+        letter, _, column = name.partition("_")
+        group = 1 if column in CONTROLS else 0
+        return (group, "XYZLMN".find(letter) if letter in "XYZLMN" else 9, column, name)
+
+    return sorted((str(p) for p in parameters), key=key)
+
+
+def estimated_parameters(ds: xr.Dataset) -> list[str]:
+    """Parameters some method estimated in some condition."""
+    if "value" not in ds:
+        return []
+    have = ds["value"].notnull().any(("condition", "model"))
+    return [str(p) for p in ds.parameter.values if bool(have.sel(parameter=p))]
+
+
+def plot_derivatives(ds: xr.Dataset, path: str | Path) -> Path | None:
+    """Grid of every estimated parameter against airspeed (CR bars, truth line); PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    params = estimated_parameters(ds)
+    if not params:
+        return None
+    ok = ds.isel(condition=np.flatnonzero(ds.status.values == "ok"))
+    ncols = 6
+    nrows = math.ceil(len(params) / ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(3.0 * ncols, 2.3 * nrows), squeeze=False)
+    speeds = ok.airspeed_kt.values
+    span = max(float(np.ptp(speeds)) if speeds.size else 0.0, 40.0)
+    styles = {"frequency_domain": ("C0", "o", -0.012), "time_domain": ("C3", "s", 0.012)}
+    for ax, name in zip(axes.flat, params):
+        limit = _plot_limit(ok["value"].sel(parameter=name).values,
+                            ok["truth"].sel(parameter=name).values)
+        off_scale = 0
+        for method in ok.model.values:
+            color, marker, shift = styles.get(str(method), ("C2", "^", 0.0))
+            v = ok["value"].sel(model=method, parameter=name).values
+            e = ok["cramer_rao"].sel(model=method, parameter=name).values
+            good = np.isfinite(v) & (np.abs(v) <= limit)
+            ax.errorbar(speeds[good] + shift * span, v[good],
+                        yerr=np.where(np.isfinite(e[good]), e[good], 0.0), fmt=marker,
+                        color=color, ms=3.5, capsize=2, lw=0.9,
+                        label="FD" if method == "frequency_domain" else
+                        "TD" if method == "time_domain" else str(method))
+            # Diverged estimates (e.g. 1e9) would flatten the panel: drawn as open
+            # triangles on its edge and counted in the title instead.
+            far = np.isfinite(v) & (np.abs(v) > limit)
+            off_scale += int(far.sum())
+            ax.plot(speeds[far] + shift * span, np.sign(v[far]) * limit,
+                    "^" if np.all(v[far] > 0) else "v", mfc="none", color=color, ms=5)
+        truth = ok["truth"].sel(parameter=name)
+        t = truth.groupby(ok.airspeed_kt).mean() if truth.notnull().any() else None
+        if t is not None:
+            ax.plot(t.airspeed_kt.values, t.values, "k-", marker="_", ms=14, lw=1.2, label="truth")
+        ax.set_title(name + (f" ({off_scale} off scale)" if off_scale else ""), fontsize=9)
+        ax.tick_params(labelsize=7)
+        ax.axhline(0.0, color="0.8", lw=0.6, zorder=0)
+    for ax in list(axes.flat)[len(params):]:
+        ax.set_visible(False)
+    for ax in axes[-1]:
+        ax.set_xlabel("airspeed, kt", fontsize=8)
+    handles, labels = axes.flat[0].get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="upper right", fontsize=8, ncol=3)
+    failed = [str(c) for c in ds.condition.values[ds.status.values != "ok"]]
+    fig.suptitle("Identified parameters against airspeed (bars: Cramer-Rao bound; line: truth "
+                 "linearisation)" + (f"; failed: {', '.join(failed)}" if failed else ""),
+                 fontsize=10)
+    fig.tight_layout(rect=(0, 0, 1, 0.96))
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90)
+    plt.close(fig)
+    return path
+
+
+#: Estimates beyond this many times the panel's scale (see _plot_limit) are drawn off scale.
+OFF_SCALE_FACTOR = 5.0
+
+
+def _plot_limit(values: np.ndarray, truth: np.ndarray) -> float:
+    """Largest |value| a derivative panel shows: OFF_SCALE_FACTOR times the larger of the
+    truth's largest magnitude and the estimates' median magnitude (robust to a few diverged
+    fits); infinite when there is nothing to scale by."""
+    scales = [np.nanmax(np.abs(truth)) if np.isfinite(truth).any() else 0.0,
+              np.nanmedian(np.abs(values)) if np.isfinite(values).any() else 0.0]
+    scale = max(scales)
+    return OFF_SCALE_FACTOR * scale if scale > 0 else np.inf
+
+
+def monte_carlo(ds: xr.Dataset) -> xr.Dataset | None:
+    """Observed scatter across seeds against the mean Cramer-Rao bound, per airspeed.
+
+    Only airspeeds with at least two successful seeds count. Returns (airspeed_kt, model,
+    parameter): ``std`` (sample standard deviation over seeds), ``mean`` , ``cramer_rao_mean``
+    and ``ratio = std / cramer_rao_mean`` (about 1 when the CR bound is a fair error estimate;
+    CIFER experience puts the observed scatter at 2-3 times the bound), and ``n_seeds``.
+    """
+    if "value" not in ds:
+        return None
+    ok = ds.isel(condition=np.flatnonzero(ds.status.values == "ok"))
+    groups = []
+    for speed in np.unique(ok.airspeed_kt.values):
+        part = ok.isel(condition=np.flatnonzero(ok.airspeed_kt.values == speed))
+        if part.sizes["condition"] < 2:
+            continue
+        std = part["value"].std("condition", ddof=1)
+        cr = part["cramer_rao"].mean("condition")
+        groups.append(xr.Dataset({
+            "std": std, "mean": part["value"].mean("condition"), "cramer_rao_mean": cr,
+            "ratio": std / cr,
+            "n_seeds": xr.DataArray(part.sizes["condition"])}).expand_dims(
+                airspeed_kt=[float(speed)]))
+    if not groups:
+        return None
+    mc = xr.concat(groups, dim="airspeed_kt")
+    mc["ratio"].attrs["long_name"] = "observed std over seeds / mean Cramer-Rao bound"
+    return mc
+
+
+def format_monte_carlo(mc: xr.Dataset) -> str:
+    lines = ["Monte Carlo: observed std over seeds / mean Cramer-Rao bound"]
+    for speed in mc.airspeed_kt.values:
+        part = mc.sel(airspeed_kt=speed)
+        lines.append(f"\n{speed:g} kt ({int(part['n_seeds'])} seeds)")
+        lines.append(f"{'parameter':<11}" + "".join(f"{str(m):>30}" for m in mc.model.values))
+        lines.append(f"{'':<11}" + "".join(f"{'std':>10}{'CR':>10}{'ratio':>10}"
+                                           for _ in mc.model.values))
+        for p in mc.parameter.values:
+            cells = part.sel(parameter=p)
+            if not bool(cells["std"].notnull().any()):
+                continue
+            row = f"{str(p):<11}"
+            for m in mc.model.values:
+                c = cells.sel(model=m)
+                row += "".join(f"{float(c[v]):>10.3g}" for v in ("std", "cramer_rao_mean",
+                                                                  "ratio"))
+            lines.append(row)
+        ratio = part["ratio"].where(np.isfinite(part["ratio"]))
+        lines.append("median ratio: " + ", ".join(
+            f"{str(m)} {float(ratio.sel(model=m).median()):.2f}" for m in mc.model.values))
+    return "\n".join(lines)
+
+
+def format_summary(ds: xr.Dataset) -> str:
+    lines = [f"{'condition':<32}{'kt':>6}{'seed':>10}  {'structure':<14}{'status':<8}"
+             f"{'time s':>8}{'J_ave FD':>10}{'J_ave TD':>10}  error"]
+    for k, name in enumerate(ds.condition.values):
+        row = ds.isel(condition=k)
+        j = {}
+        if "J_ave" in ds:
+            for m in ("frequency_domain", "time_domain"):
+                j[m] = (float(row["J_ave"].sel(model=m)) if m in ds.model.values
+                        else float("nan"))
+        lines.append(f"{str(name):<32}{float(row.airspeed_kt):>6g}{int(row.seed):>10}  "
+                     f"{str(row.structure.values):<14}{str(row.status.values):<8}"
+                     f"{float(row.elapsed_s):>8.1f}"
+                     f"{j.get('frequency_domain', float('nan')):>10.2f}"
+                     f"{j.get('time_domain', float('nan')):>10.2f}  {str(row.error.values)}")
+    if "wall_time_s" in ds.attrs:
+        lines.append(f"wall time {ds.attrs['wall_time_s']} s on {ds.attrs.get('scheduler')}"
+                     f" ({ds.attrs.get('n_workers')} workers)")
+    return "\n".join(lines)
+
+
+def read_batch(out_dir: str | Path) -> xr.Dataset:
+    """The combined ``batch.nc`` of a finished batch."""
+    path = Path(out_dir) / "batch.nc"
+    if not path.exists():
+        raise InputDataError(f"no batch results at {path}")
+    with xr.open_dataset(path) as ds:
+        return ds.load()
+
+
+def default_conditions(*, quick: bool = False) -> list[Condition]:
+    """The issue's six airspeeds, one seed each."""
+    return conditions(DEFAULT_SPEEDS, quick=quick)
+
+
+__all__ = ["Condition", "BatchResult", "conditions", "load_conditions", "default_conditions",
+           "run_batch", "run_condition", "run_condition_part", "condition_summary", "combine",
+           "plot_derivatives", "monte_carlo", "structure_for", "quick_campaign", "read_batch",
+           "DEFAULT_SPEEDS",
+           "FORWARD_FLIGHT_KT"]
+

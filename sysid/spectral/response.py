@@ -1,0 +1,295 @@
+"""Frequency-response stage: time histories -> conditioned, composite frequency responses.
+
+The CIFER chain FRESPID (windowed spectra, :mod:`sysid.spectral.spectra`) -> MISOSA (MIMO conditioning,
+:mod:`sysid.spectral.conditioning`) -> COMPOSITE (:mod:`sysid.spectral.composite`) in one call::
+
+    ds = frequency_response(records, inputs=["lon", "lat", "col", "ped"],
+                            outputs=["u", "v", "w", "p", "q", "r", "phi", "theta", "psi"])
+
+Perturbations: a record's channel is taken about the Dataset attribute ``trim_<channel>`` when
+present (time histories written by :mod:`sysid.flight_test.campaign` carry them), else about the record's
+mean over its whole length (imported data). Several records are concatenated CIFER-style: each
+is segmented separately and the segment averages are pooled.
+
+The returned Dataset (``docs/data_model.md``) has dims ``output``, ``input``, ``input_j``,
+``frequency`` (rad/s) and ``window`` (s, only in the per-window result):
+
+``H`` (output, input, frequency), complex
+    composite conditioned response (Eq. 17), output units per input unit; the unconditioned
+    single-input estimate when ``conditioned=False``.
+``coherence`` (output, input, frequency)
+    composite ordinary coherence (Eq. 7; Eq. 16 applied to the unconditioned pair spectra).
+``partial_coherence`` (output, input, frequency)
+    composite coherence of the conditioned pair spectra (Eq. 11; equals ``coherence`` when
+    unconditioned). This is the coherence to use for the conditioned ``H``.
+``random_error`` (output, input, frequency)
+    composite normalised random error (Eq. 13 per window, combined with the Eq. 14 weights).
+``multiple_coherence`` (output, frequency)
+    Eq. 12 from the window-averaged spectra.
+``Gxx`` (input, input_j, frequency), ``Gyy`` (output, frequency), ``Gxy`` (output, input,
+frequency), ``cross_coherence`` (input, input_j, frequency), ``input_coherence`` (input,
+frequency)
+    unconditioned spectra averaged over the usable windows (weights ``(n_d/n_d_max)^2``, i.e.
+    Eq. 14 at equal coherence), cross-control coherence Eq. 8, and each input's multiple
+    coherence on the other inputs.
+``Gxx_pair``, ``Gyy_pair``, ``Gxy_pair`` (output, input, frequency)
+    the composite (conditioned) pair spectra, ``H = Gxy_pair / Gxx_pair``.
+``collinear`` (frequency), bool
+    no window is usable there (nearly collinear inputs in every window trusted at that
+    frequency); ``H`` is NaN.
+``window_length``, ``n_d`` (window_length)
+    the window lengths (s) and their independent averages ``T_r / T``.
+
+Attributes: ``overlap``, ``C_eps``, ``windows`` (s), ``records``, ``inputs``, ``outputs``,
+``conditioned``, ``collinear_threshold``, ``conditioning_method``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import xarray as xr
+
+from sysid import __version__
+from sysid.spectral import composite as _composite
+from sysid.spectral import conditioning as _conditioning
+from sysid.spectral import spectra as _spectra
+from sysid.core.errors import InputDataError
+from sysid.core.units import CHANNELS
+from sysid.core.util import Progress
+
+#: Default number of log-spaced frequency points.
+DEFAULT_N_FREQUENCIES = 200
+#: Default highest frequency as a fraction of the sample rate: ``omega_max = 2 pi fs / 10``
+#: (ten samples per period of the highest frequency; 62.8 rad/s at 100 Hz).
+SAMPLES_PER_PERIOD_AT_OMEGA_MAX = 10.0
+
+
+def _progress(progress) -> Progress:
+    if isinstance(progress, Progress):
+        return progress
+    return Progress(quiet=not progress)
+
+
+def _channel_list(names, what: str) -> list[str]:
+    if isinstance(names, str):
+        names = [n.strip() for n in names.split(",") if n.strip()]
+    names = list(names)
+    if not names:
+        raise InputDataError(f"no {what} channels given")
+    if len(set(names)) != len(names):
+        raise InputDataError(f"{what} channels listed twice: {names}")
+    return names
+
+
+def _frequency_grid(frequencies, omega_min, omega_max, n_frequencies, windows, dt):
+    nyquist = math.pi / dt
+    if frequencies is not None:
+        w = np.sort(np.asarray(getattr(frequencies, "values", frequencies), dtype=float))
+        grid = xr.DataArray(w, dims="frequency", coords={"frequency": w},
+                            attrs={"units": "rad/s", "long_name": "frequency"})
+    else:
+        lo = omega_min if omega_min is not None else 2.0 * math.pi / max(windows)
+        hi = omega_max if omega_max is not None else (
+            2.0 * math.pi / (SAMPLES_PER_PERIOD_AT_OMEGA_MAX * dt))
+        grid = _spectra.log_frequencies(lo, hi, n_frequencies)
+    if grid.size == 0 or float(grid.max()) >= nyquist or float(grid.min()) <= 0:
+        raise InputDataError(
+            f"frequencies {float(grid.min()):.6g}..{float(grid.max()):.6g} rad/s: expected "
+            f"positive values below the Nyquist frequency {nyquist:.6g} rad/s")
+    return grid
+
+
+def frequency_response(records, inputs: Sequence[str], outputs: Sequence[str], *,
+                       n_windows: int = _composite.DEFAULT_N_WINDOWS,
+                       windows: Sequence[float] | None = None,
+                       overlap: float = _spectra.DEFAULT_OVERLAP,
+                       frequencies=None, n_frequencies: int = DEFAULT_N_FREQUENCIES,
+                       omega_min: float | None = None, omega_max: float | None = None,
+                       C_eps: float = _spectra.DEFAULT_C_EPS, conditioned: bool = True,
+                       collinear_threshold: float = _conditioning.DEFAULT_COLLINEAR_THRESHOLD,
+                       method: str = "matrix",
+                       coherence_weight: float = _composite.COHERENCE_WEIGHT,
+                       keep_windows: bool = False, progress=None,
+                       transient_states: Sequence[str] = ()):
+    """Composite (conditioned) frequency responses of every input/output pair.
+
+    Parameters
+    ----------
+    records : xr.Dataset, sequence of xr.Dataset or mapping name -> xr.Dataset
+        Time histories, uniform ``time`` (s), channels as data variables in analysis units.
+    inputs, outputs : sequence of str (or comma-separated str)
+        Channel names, e.g. ``["lon", "lat", "col", "ped"]`` and ``["p", "q"]``.
+    n_windows : int
+        Window lengths for compositing when ``windows`` is not given (default 5; lengths
+        from :func:`sysid.spectral.composite.default_windows`).
+    windows : sequence of float, optional
+        Explicit window lengths, s.
+    overlap : float
+        Segment overlap, default 0.8.
+    frequencies : array-like, optional
+        Frequency grid, rad/s. Default: ``n_frequencies`` (200) log-spaced points from
+        ``omega_min`` (default ``2 pi / T_max``, the lowest frequency the longest window
+        resolves) to ``omega_max`` (default ``2 pi fs / 10``).
+    C_eps : float
+        Random-error constant of Eq. 9/13 (default 0.7 for Hann, 50-80 % overlap, with
+        ``n_d = T_r / T``; see :func:`sysid.spectral.spectra.hann_error_constant`).
+    conditioned : bool
+        MIMO conditioning of each pair on the other inputs (default). ``False`` gives the
+        unconditioned single-input estimates (:func:`siso_frequency_response`).
+    collinear_threshold : float
+        Frequencies where an input's multiple coherence on the other inputs exceeds this
+        (default 0.99) are flagged ``collinear`` in each window and not used.
+    method : {"matrix", "recursion"}
+        Conditioning by the normal equations or the paper's Eq. 10 recursion (same result).
+    coherence_weight : float
+        Weight of the coherence term of the composite cost Eq. 16 (default 5.0, the
+        paper's). Where the windows disagree this term brings the composite coherence to the
+        windows' weighted mean coherence; with the spectral terms scaled by the windows'
+        spread (:mod:`sysid.spectral.composite`) the change goes mostly into the spectrum the windows
+        disagree on (typically ``Gyy``), not into ``H``. ``0`` reduces compositing to the
+        Eq. 14-weighted average of the window spectra.
+    keep_windows : bool
+        Also return the per-window results (dim ``window``, s).
+    progress : sysid.core.util.Progress or bool, optional
+        Per-stage progress lines; silent by default.
+    transient_states : sequence of str (or comma-separated str)
+        Measured state channels (e.g. ``u,v,w,p,q,r,phi,theta``) whose taper-derivative
+        transforms join the conditioning as extra inputs (:func:`sysid.spectral.spectra.window_spectra`),
+        removing the leakage of each segment's start and end conditions. Off by default (the
+        paper's method). It matters near lightly damped or unstable modes flown in closed loop:
+        on the truth FMU's hover linearisation flown with the campaign's holds, noise-free,
+        q/lon near the unstable pitch-roll oscillation (0.2-0.5 rad/s) is 3-7 dB high without
+        it and within 0.4 dB with it. Each regressor costs an average per segment; the
+        random error (Eq. 13) is not corrected for that.
+
+    Returns
+    -------
+    xr.Dataset, or ``(composite, per_window)`` when ``keep_windows``. See the module docstring
+    for the variables.
+    """
+    inputs = _channel_list(inputs, "input")
+    outputs = _channel_list(outputs, "output")
+    both = set(inputs) & set(outputs)
+    if both:
+        raise InputDataError(f"channels {sorted(both)} are both inputs and outputs")
+    transient = _channel_list(transient_states, "transient state") if transient_states else []
+    if transient and not conditioned:
+        raise InputDataError("transient_states need the conditioned (MIMO) estimate: the "
+                             "transient terms are extra inputs of the conditioning")
+    if set(transient) & set(inputs):
+        raise InputDataError(f"channels {sorted(set(transient) & set(inputs))} are both "
+                             "inputs and transient states")
+    prog = _progress(progress)
+    with prog.stage("frequency response: checking records"):
+        extra = [c for c in transient if c not in outputs]
+        signals = _spectra.perturbations(records, inputs + outputs + extra, inputs)
+    dt = signals[0].attrs["dt"]
+    durations = [s.sizes["time"] * dt for s in signals]
+    if windows is None:
+        hi = omega_max
+        if hi is None and frequencies is not None:
+            hi = float(np.max(frequencies))
+        if hi is None:
+            hi = 2.0 * math.pi / (SAMPLES_PER_PERIOD_AT_OMEGA_MAX * dt)
+        windows = _composite.default_windows(durations, hi, n_windows, dt=dt)
+    windows = sorted(round(round(T / dt) * dt, 9) for T in windows)
+    if len(set(windows)) != len(windows):
+        raise InputDataError(f"window lengths coincide after rounding to samples: {windows}")
+    for T in windows:
+        _spectra.check_window(signals, T, overlap)
+    grid = _frequency_grid(frequencies, omega_min, omega_max, n_frequencies, windows, dt)
+
+    with prog.stage(f"frequency response: spectra of {len(windows)} windows "
+                    f"({', '.join(f'{T:g}' for T in windows)} s), {grid.size} frequencies"):
+        spec = _spectra.spectra(signals, inputs, outputs, windows, grid, overlap,
+                                transient=transient)
+    with prog.stage("frequency response: conditioning" if conditioned
+                    else "frequency response: single-input estimates"):
+        controls = {"input": inputs, "input_j": inputs}
+        siso = _conditioning.siso_response(spec.sel(controls), C_eps=C_eps)
+        if conditioned:
+            per_window = _conditioning.conditioned_response(
+                spec, C_eps=C_eps, collinear_threshold=collinear_threshold, method=method,
+                collinear_inputs=inputs)
+            # the transient regressors are conditioned on, not reported
+            per_window = per_window.sel({d: inputs for d in controls if d in per_window.dims})
+        else:
+            per_window = siso
+    with prog.stage("frequency response: composite windowing"):
+        result, weight = _assemble(per_window, siso, conditioned, coherence_weight)
+    attrs = {
+        "overlap": overlap, "C_eps": C_eps, "windows": np.asarray(windows),
+        "records": [s.attrs["name"] for s in signals], "inputs": inputs, "outputs": outputs,
+        "conditioned": bool(conditioned), "collinear_threshold": collinear_threshold,
+        "conditioning_method": method if conditioned else "", "sysid_version": __version__,
+        "coherence_weight": coherence_weight,
+        "sample_interval": dt, "transient_states": list(transient),
+    }
+    result.attrs = dict(attrs)
+    _units(result, inputs, outputs)
+    if not keep_windows:
+        return result
+    usable = _composite.trusted(per_window["frequency"], per_window["window"])
+    per_window = per_window.assign(trusted=usable, weight=weight).transpose(
+        "output", "input", "input_j", "frequency", "window")
+    per_window.attrs = dict(attrs)
+    _units(per_window, inputs, outputs)
+    return result, per_window
+
+
+def _assemble(per_window: xr.Dataset, siso: xr.Dataset, conditioned: bool,
+              coherence_weight: float):
+    """Composite results from the per-window ones (see module docstring), and the Eq. 14
+    weights (output, input, frequency, window)."""
+    main = _composite.composite_response(per_window, coherence_weight=coherence_weight)
+    out = xr.Dataset({name: main[name] for name in
+                      ("H", "partial_coherence", "random_error",
+                       "Gxx_pair", "Gyy_pair", "Gxy_pair")})
+    if conditioned:
+        ordinary = _composite.composite_response(siso, coherence_weight=coherence_weight)
+        out["coherence"] = ordinary["partial_coherence"]
+    else:
+        out["coherence"] = main["partial_coherence"]
+    usable = _composite.trusted(per_window["frequency"], per_window["window"])
+    for name in ("Gxx", "Gyy", "Gxy"):
+        out[name] = _composite.average_windows(per_window[name], per_window["n_d"], usable)
+    out["cross_coherence"] = _conditioning.cross_coherence(out["Gxx"])
+    out["input_coherence"] = _conditioning.input_coherence(out["Gxx"])
+    out["multiple_coherence"] = _conditioning.conditioned_pair_spectra(
+        out["Gxx"], out["Gyy"], out["Gxy"])["multiple_coherence"]
+    out["collinear"] = (main["weight"].sum("window") == 0).all(("output", "input"))
+    out["H"] = out["H"].where(~out["collinear"])
+    out["n_d"] = per_window["n_d"].rename(window="window_length")
+    for name in ("Gxx", "Gyy", "Gxy", "cross_coherence", "input_coherence",
+                 "multiple_coherence"):
+        out[name].attrs.update(per_window[name].attrs)
+    out["H"].attrs.update(per_window["H"].attrs)
+    out["coherence"].attrs.update(long_name="composite ordinary coherence (Eq. 7, 16)",
+                                  units="1")
+    out["partial_coherence"].attrs.update(
+        long_name=("composite partial coherence (Eq. 11, 16)" if conditioned
+                   else "composite ordinary coherence (Eq. 7, 16)"), units="1")
+    out["random_error"].attrs.update(long_name="composite normalised random error (Eq. 13, 14)",
+                                     units="1")
+    out["collinear"].attrs.update(long_name="no usable window: inputs nearly collinear")
+    return out, main["weight"]
+
+
+def _units(ds: xr.Dataset, inputs, outputs) -> None:
+    """``units`` strings for the response and the channel coordinates (analysis units)."""
+    unit = {c: CHANNELS[c].unit if c in CHANNELS else "" for c in list(inputs) + list(outputs)}
+    ds["output"].attrs.update(units_per_channel=[unit[o] for o in outputs])
+    ds["input"].attrs.update(units_per_channel=[unit[i] for i in inputs])
+    ds["frequency"].attrs.update(units="rad/s", long_name="frequency")
+    ds["H"].attrs["units"] = "output unit per input unit (see output/input units_per_channel)"
+
+
+def siso_frequency_response(records, inputs: Sequence[str], outputs: Sequence[str], **kwargs):
+    """Unconditioned single-input composite estimates ``H = Gxy / Gxx_ii`` of every pair,
+    ignoring the other inputs (for comparison with the conditioned result); same parameters
+    as :func:`frequency_response` except ``conditioned``."""
+    kwargs.pop("conditioned", None)
+    return frequency_response(records, inputs, outputs, conditioned=False, **kwargs)

@@ -1,0 +1,231 @@
+"""Fast co-simulation stepping for closed-loop flight-test campaigns.
+
+:class:`CoSimulation` wraps one co-simulation instance of the truth FMU for loops written in
+Python, e.g. a 100 Hz sweep with secondary-axis controllers::
+
+    from sysid.truth import CoSimulation, trim
+
+    t0 = trim(0.0)
+    with CoSimulation() as sim:
+        y = sim.reset(t0)                      # outputs at trim, analysis units
+        i_phi = sim.output_names.index("phi")
+        controls = sim.trim_controls.copy()    # lon lat col ped, %
+        for k in range(6000):                  # 60 s at 100 Hz
+            # roll-attitude hold on the lateral cyclic (gain in % per deg)
+            controls[1] = sim.trim_controls[1] - 0.5 * (y[i_phi] - t0.phi_deg)
+            y = sim.step(controls, dt=0.01)
+
+Each :meth:`CoSimulation.step` sets the seven inputs, advances the FMU's internal RK4 by
+``dt`` (inputs held constant over the step) and reads the outputs, through the FMI C functions
+with preallocated arrays: no dict, list or xarray object is created per step, and the
+outputs come back as one NumPy array in analysis units (ft/s, deg/s, deg, ft/s^2, %, ft).
+A step raises :class:`~sysid.core.errors.SimulationDiverged` (with the time) when an output leaves
+the physical envelope or a state becomes non-finite, and
+:class:`~sysid.core.errors.InputDataError` for a NaN or mis-shaped control vector.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sysid.core.errors import FMUError, InputDataError, SimulationDiverged
+from sysid.fmi.runtime import (FMUModel, Instance, ReleasedOnExit, _c_double_p, _c_uint_p,
+                                load_fmu)
+from sysid.truth.linearize import analysis_unit, si_to_analysis
+from sysid.truth.trim import TrimResult
+from sysid.core.units import CONTROLS, conversion_factor
+
+#: Measurement channels of a time history (docs/data_model.md), in order.
+MEASUREMENTS = ("u", "v", "w", "p", "q", "r", "phi", "theta", "psi", "ax", "ay", "az")
+#: Further outputs recorded by default: flapping, blade angles, position, airspeed.
+EXTRA_OUTPUTS = ("a1", "b1", "theta_0", "theta_1s", "theta_1c", "theta_tr",
+                 "x_n", "y_e", "h", "airspeed")
+DEFAULT_OUTPUTS = MEASUREMENTS + EXTRA_OUTPUTS
+GUSTS = ("u_gust", "v_gust", "w_gust")
+
+#: Physical envelope (analysis units): a step whose outputs exceed these magnitudes raises
+#: SimulationDiverged. Attitudes stay clear of the Euler-angle singularity at 90 deg pitch.
+DEFAULT_ENVELOPE = {"u": 400.0, "v": 200.0, "w": 200.0, "p": 300.0, "q": 300.0, "r": 300.0,
+                    "phi": 90.0, "theta": 80.0, "airspeed": 400.0}
+
+
+class CoSimulation(ReleasedOnExit):
+    """One co-simulation instance of the truth helicopter, stepped from Python.
+
+    Parameters
+    ----------
+    fmu : path or FMUModel, optional
+        Default: the truth helicopter FMU (built on first use).
+    outputs : sequence of str
+        FMU outputs returned by :meth:`step`, in this order (:attr:`output_names`).
+    step_size : float, optional
+        Internal RK4 sub-step, s (FMU parameter ``h_rk4``; default from the FMU, 5 ms).
+    parameters : dict, optional
+        Further FMU parameter overrides (SI); the trim's own parameters are applied first.
+    envelope : dict, optional
+        ``{output: max |value|}`` in analysis units; default :data:`DEFAULT_ENVELOPE`
+        (entries for outputs not requested are ignored). Pass ``{}`` to disable.
+    name : str
+        Manoeuvre name carried by :class:`SimulationDiverged`.
+    """
+
+    def __init__(self, fmu=None, *, outputs=DEFAULT_OUTPUTS, step_size: float | None = None,
+                 parameters: dict | None = None, envelope: dict | None = None,
+                 name: str | None = None):
+        self.model: FMUModel = fmu if isinstance(fmu, FMUModel) else load_fmu(fmu)
+        self.output_names = tuple(outputs)
+        # Every missing input and output in one message (a foreign FMU lacks many).
+        self.model.require(dict.fromkeys((*CONTROLS, *GUSTS, *self.output_names)),
+                           "for co-simulation of the helicopter")
+        #: Analysis unit of each output.
+        self.output_units = tuple(analysis_unit(self.model, n) for n in self.output_names)
+        self._factor = np.array([si_to_analysis(self.model, n) for n in self.output_names])
+        self._gust_factor = conversion_factor("ft/s", self.model.unit("u_gust"))
+        self._extra_parameters = dict(parameters or {})
+        if step_size is not None:
+            if not step_size > 0:
+                raise InputDataError(f"step_size must be positive, got {step_size!r}")
+            self._extra_parameters["h_rk4"] = float(step_size)
+        envelope = DEFAULT_ENVELOPE if envelope is None else envelope
+        idx = [k for k, n in enumerate(self.output_names) if n in envelope]
+        self._env_index = np.array(idx, dtype=int)
+        self._env_limit = np.array([envelope[self.output_names[k]] for k in idx])
+        self.name = name
+        self._inst: Instance | None = None
+        self._vr_in = self.model.vrs((*CONTROLS, *GUSTS))
+        self._vr_out = self.model.vrs(self.output_names)
+        self._in = np.zeros(len(self._vr_in))
+        self._out = np.empty(len(self._vr_out))
+        self._vr_in_p = self._vr_in.ctypes.data_as(_c_uint_p)
+        self._vr_out_p = self._vr_out.ctypes.data_as(_c_uint_p)
+        self._in_p = self._in.ctypes.data_as(_c_double_p)
+        self._out_p = self._out.ctypes.data_as(_c_double_p)
+        self.time = 0.0
+        #: Trim controls of the last :meth:`reset`, % (lon lat col ped).
+        self.trim_controls = np.full(4, np.nan)
+
+    @property
+    def fmu_name(self) -> str:
+        """Model name of the FMU (for the ``fmu_name`` attribute of time histories)."""
+        return self.model.name
+
+    @property
+    def fmu_guid(self) -> str:
+        """GUID of the FMU (for the ``fmu_guid`` attribute of time histories)."""
+        return self.model.guid
+
+    # ------------------------------------------------------------------------------------
+    def reset(self, trim: TrimResult, time: float = 0.0) -> np.ndarray:
+        """(Re)initialise exactly at ``trim`` at ``time``; returns the outputs there."""
+        parameters = {**trim.parameters, **self._extra_parameters}
+        if self._inst is None or self._inst.parameters != parameters:
+            if self._inst is not None:
+                self._inst.close()
+            self._inst = Instance(self.model, "cs", parameters, name="sysid_cosimulation")
+            self._raw_set = self._inst._raw["fmi2SetReal"]
+            self._raw_get = self._inst._raw["fmi2GetReal"]
+            self._raw_step = self._inst._raw["fmi2DoStep"]
+            self._c = self._inst._c
+        else:
+            self._inst.reset()
+        self._inst.initialize(trim.start_values(), start_time=time)
+        self.time = float(time)
+        self.trim_controls = np.array([trim.controls[c] for c in CONTROLS])
+        self._in[:4] = self.trim_controls
+        self._in[4:] = 0.0
+        return self.outputs()
+
+    def outputs(self) -> np.ndarray:
+        """Current outputs, analysis units, in the order of :attr:`output_names`."""
+        if self._inst is None:
+            raise FMUError("CoSimulation.reset(trim) must be called before stepping")
+        status = self._raw_get(self._c, self._vr_out_p, len(self._vr_out), self._out_p)
+        if status > 1:
+            self._inst.check(status, "fmi2GetReal")
+        return self._out * self._factor
+
+    def step(self, controls, gusts=None, dt: float = 0.01) -> np.ndarray:
+        """Advance by ``dt`` seconds with ``controls`` held constant over the step.
+
+        Parameters
+        ----------
+        controls : array-like, shape (4,)
+            Absolute ``lon lat col ped``, % of travel (the FMU saturates at 0 and 100).
+        gusts : array-like, shape (3,), optional
+            Wind ``u_gust v_gust w_gust`` along the body axes, ft/s.
+        dt : float
+            Step, s.
+
+        Returns
+        -------
+        np.ndarray, shape (n_outputs,)
+            Outputs at the end of the step, analysis units (a new array).
+        """
+        inp = self._in
+        try:
+            inp[0], inp[1], inp[2], inp[3] = controls
+        except (TypeError, ValueError):
+            raise InputDataError(f"controls must be 4 numbers (lon lat col ped, %), "
+                                 f"got {controls!r}") from None
+        if gusts is None:
+            inp[4] = inp[5] = inp[6] = 0.0
+        else:
+            try:
+                inp[4], inp[5], inp[6] = gusts
+            except (TypeError, ValueError):
+                raise InputDataError(f"gusts must be 3 numbers (u v w, ft/s), "
+                                     f"got {gusts!r}") from None
+            inp[4:] *= self._gust_factor
+        if not np.isfinite(inp).all():
+            raise InputDataError(f"step input must be finite at t = {self.time:.3f} s: "
+                                 f"controls {list(controls)}, gusts {gusts}")
+        if self._inst is None:
+            raise FMUError("CoSimulation.reset(trim) must be called before stepping")
+        status = self._raw_set(self._c, self._vr_in_p, 7, self._in_p)
+        if status > 1:
+            self._inst.check(status, "fmi2SetReal")
+        status = self._raw_step(self._c, self.time, dt, 1)
+        if status > 1:
+            message = self._inst._logger.last("")
+            if "non-finite" in message or "diverged" in message:
+                raise SimulationDiverged(f"simulation diverged: {message}",
+                                         maneuver=self.name, time=self.time + dt)
+            self._inst.check(status, f"fmi2DoStep at t = {self.time:.3f} s")
+        self.time += dt
+        self._raw_get(self._c, self._vr_out_p, len(self._vr_out), self._out_p)
+        y = self._out * self._factor
+        if self._env_index.size:
+            check = np.abs(y[self._env_index])
+            if not (check <= self._env_limit).all():
+                bad = int(np.argmax(~(check <= self._env_limit)))
+                k = self._env_index[bad]
+                raise SimulationDiverged(
+                    f"simulation left the envelope at t = {self.time:.2f} s: "
+                    f"{self.output_names[k]} = {y[k]:.4g} {self.output_units[k]} "
+                    f"(limit +-{self._env_limit[bad]:g})", maneuver=self.name, time=self.time)
+        return y
+
+    def get_state(self):
+        """Snapshot of the FMU state (fmi2GetFMUstate) and time; restore with
+        :meth:`set_state`, release with :meth:`free_state`."""
+        if self._inst is None:
+            raise FMUError("CoSimulation.reset(trim) must be called first")
+        return self._inst._call("getFMUstate"), self.time
+
+    def set_state(self, snapshot) -> None:
+        state, time = snapshot
+        self._inst._call("setFMUstate", state)
+        self.time = time
+
+    def free_state(self, snapshot) -> None:
+        self._inst._call("freeFMUstate", snapshot[0])
+
+    def close(self) -> None:
+        """Free the FMU instance."""
+        if self._inst is not None:
+            self._inst.close()
+            self._inst = None
+
+
+__all__ = ["CoSimulation", "DEFAULT_OUTPUTS", "MEASUREMENTS", "EXTRA_OUTPUTS",
+           "DEFAULT_ENVELOPE"]

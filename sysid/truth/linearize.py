@@ -1,0 +1,275 @@
+"""Numerical linearisation of the truth helicopter around a trim.
+
+Full model
+    Central differences of the model-exchange derivatives ``f(x, u)``:
+    ``A[:, j] = (f(x + h_j e_j, u) - f(x - h_j e_j, u)) / (2 h_j)``, with the step
+    ``h_j = step * nominal_j``: ``nominal_j`` is the state's nominal value declared by the FMU
+    (10 m/s for velocities and induced velocities, 1 rad/s for rates, 1 rad for attitudes,
+    0.1 rad for flapping and blade angles) and 1 % for the controls; ``step = 1e-5`` by
+    default. The truncation error is O(h^2) and the round-off error ~1e-16 |f| / h, so the
+    default step gives ~8 significant digits on the entries that matter. The full state is
+    every FMU state except the navigation states ``x_n y_e h``, which are pure integrators
+    that feed nothing back.
+
+Quasi-steady 6-DoF reduction
+    The rotor (flapping, inflow) and actuator states ``z`` are residualised, i.e. assumed at
+    their instantaneous equilibrium ``dz/dt = 0``:
+    ``A_r = A11 - A12 A22^-1 A21``, ``B_r = B1 - A12 A22^-1 B2``, over the nine states
+    ``u v w p q r phi theta psi``.
+
+Named derivatives follow :mod:`sysid.core.kinematics`: ``X_u = A_r[u, u] - A_kin[u, u]`` etc.,
+the aerodynamic part of the entry once the rigid-body kinematic and gravity terms of the trim
+are removed. Everything is returned in analysis units (ft/s, deg/s, deg, %).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import xarray as xr
+
+from sysid.fmi.runtime import DerivativeFunction, FMUModel, load_fmu
+from sysid.truth.trim import NAVIGATION, TrimResult
+from sysid.core.kinematics import FORCE_LETTER, derivative_name, rigid_body_terms
+from sysid.core.units import CHANNELS, CONTROLS, STATES_6DOF, conversion_factor
+
+#: Default relative finite-difference step (times the state's nominal value).
+DEFAULT_STEP = 1e-5
+
+#: Analysis unit of a declared FMU unit for variables outside sysid.core.units.CHANNELS.
+ANALYSIS_UNIT = {"m/s": "ft/s", "rad/s": "deg/s", "rad": "deg", "m/s2": "ft/s^2", "m": "ft",
+                 "%": "%"}
+
+
+def analysis_unit(model: FMUModel, name: str) -> str:
+    """Analysis unit of an FMU variable: the paper's unit for a known channel, else the
+    customary imperial/degree counterpart of its declared unit."""
+    if name in CHANNELS:
+        return CHANNELS[name].unit
+    declared = model.unit(name)
+    return ANALYSIS_UNIT.get(declared, declared)
+
+
+def si_to_analysis(model: FMUModel, name: str) -> float:
+    """Factor from the FMU's declared unit of ``name`` to its analysis unit."""
+    return conversion_factor(model.unit(name), analysis_unit(model, name))
+
+
+def _jacobians(f: DerivativeFunction, x0, u0, step, nominal) -> tuple[np.ndarray, np.ndarray]:
+    n, m = len(x0), len(u0)
+    A = np.empty((n, n))
+    B = np.empty((n, m))
+    for j in range(n):
+        h = step * nominal[j]
+        e = np.zeros(n)
+        e[j] = h
+        A[:, j] = (f(x0 + e, u0) - f(x0 - e, u0)) / (2 * h)
+    for j in range(m):
+        h = step * 1.0
+        e = np.zeros(m)
+        e[j] = h
+        B[:, j] = (f(x0, u0 + e) - f(x0, u0 - e)) / (2 * h)
+    return A, B
+
+
+def jacobians_si(trim: TrimResult, *, step: float = DEFAULT_STEP, fmu=None
+                 ) -> tuple[xr.DataArray, xr.DataArray]:
+    """A and B of every FMU state (SI, FMU names), central differences with relative ``step``.
+
+    Returns
+    -------
+    A : xr.DataArray, dims (state_dot, state)
+    B : xr.DataArray, dims (state_dot, input)
+    """
+    model = _model(trim, fmu)
+    f = DerivativeFunction(model, trim.parameters)
+    try:
+        names = model.state_names
+        x0 = np.array([trim.states[s] for s in names])
+        u0 = np.array([trim.controls[c] for c in CONTROLS])
+        nominal = np.array([model.variable(s).nominal or 1.0 for s in names], dtype=float)
+        A, B = _jacobians(f, x0, u0, step, nominal)
+    finally:
+        f.close()
+    coords = {"state_dot": list(names), "state": list(names)}
+    return (xr.DataArray(A, dims=("state_dot", "state"), coords=coords,
+                         attrs={"units": "SI", "step": step}),
+            xr.DataArray(B, dims=("state_dot", "input"),
+                         coords={"state_dot": list(names), "input": list(CONTROLS)},
+                         attrs={"units": "SI per %", "step": step}))
+
+
+def _model(trim: TrimResult, fmu) -> FMUModel:
+    if isinstance(fmu, FMUModel):
+        return fmu
+    return load_fmu(fmu if fmu is not None else trim.fmu_path)
+
+
+def _to_analysis(model, A: np.ndarray, B: np.ndarray, states) -> tuple[np.ndarray, np.ndarray]:
+    k = np.array([si_to_analysis(model, s) for s in states])
+    return A * k[:, None] / k[None, :], B * k[:, None]
+
+
+def residualize(A: np.ndarray, B: np.ndarray, slow: list[int], fast: list[int]):
+    """Quasi-steady reduction: ``A11 - A12 A22^-1 A21`` and ``B1 - A12 A22^-1 B2``."""
+    A12 = A[np.ix_(slow, fast)]
+    A22 = A[np.ix_(fast, fast)]
+    solve_A = np.linalg.solve(A22, A[np.ix_(fast, slow)])
+    solve_B = np.linalg.solve(A22, B[fast])
+    return A[np.ix_(slow, slow)] - A12 @ solve_A, B[slow] - A12 @ solve_B
+
+
+def _common_attrs(trim: TrimResult, step: float) -> dict:
+    from sysid import __version__
+
+    return {"method": "linearization", "flight_condition": trim.flight_condition,
+            "airspeed_kt": float(trim.airspeed_kt), "fmu_name": trim.fmu_name,
+            "fmu_guid": trim.fmu_guid, "sysid_version": __version__,
+            "finite_difference_step": step,
+            "finite_difference": "central differences of the ME derivatives, "
+                                 "h_j = step * nominal_j (controls: step * 1 %)"}
+
+
+def _eigen(A: np.ndarray) -> xr.DataArray:
+    ev = np.linalg.eigvals(A)
+    ev = ev[np.lexsort((ev.imag, -np.abs(ev)))]
+    return xr.DataArray(ev, dims="mode", coords={"mode": np.arange(len(ev))},
+                        attrs={"units": "1/s", "long_name": "eigenvalues of A"})
+
+
+@dataclass(frozen=True)
+class Linearization:
+    """Linearisation of the truth helicopter at one trim.
+
+    Attributes
+    ----------
+    full : xr.Dataset
+        ``A (state_dot, state)``, ``B (state_dot, input)`` over every FMU state except
+        navigation, analysis units, with ``C = I`` and ``D = 0`` (every state an output);
+        ``eigenvalue (mode)``.
+    quasi_steady : xr.Dataset
+        The 6-DoF quasi-steady model per ``docs/data_model.md`` (method ``linearization``):
+        ``A B C D delay trim_input trim_output``, named derivatives on the ``parameter``
+        dimension, ``eigenvalue (mode)``.
+    trim : TrimResult
+    """
+
+    full: xr.Dataset
+    quasi_steady: xr.Dataset
+    trim: TrimResult
+
+    @property
+    def eigenvalues_full(self) -> np.ndarray:
+        return self.full["eigenvalue"].values
+
+    @property
+    def eigenvalues_reduced(self) -> np.ndarray:
+        return self.quasi_steady["eigenvalue"].values
+
+    def derivatives(self) -> xr.DataArray:
+        """Named derivatives (``X_u`` ... ``N_ped``) as a DataArray on ``parameter``."""
+        return self.quasi_steady["value"]
+
+
+def linearize(trim: TrimResult, *, step: float = DEFAULT_STEP, fmu=None) -> Linearization:
+    """Linearise the helicopter at ``trim``: full model and quasi-steady 6-DoF model.
+
+    Parameters
+    ----------
+    trim : TrimResult
+        From :func:`sysid.truth.trim`.
+    step : float
+        Relative central-difference step (see module docstring).
+    fmu : path or FMUModel, optional
+        Defaults to the FMU the trim was computed with.
+    """
+    model = _model(trim, fmu)
+    A_si, B_si = jacobians_si(trim, step=step, fmu=model)
+    names = [s for s in model.state_names if s not in NAVIGATION]
+    A = A_si.sel(state_dot=names, state=names).values
+    B = B_si.sel(state_dot=names).values
+    A_an, B_an = _to_analysis(model, A, B, names)
+    attrs = _common_attrs(trim, step)
+
+    # Every state is an output (C = I, D = 0), so the full model is a complete model Dataset:
+    # sysid.models.frequency_response evaluates it like any identified model.
+    n = len(names)
+    full = xr.Dataset(
+        {"A": (("state_dot", "state"), A_an), "B": (("state_dot", "input"), B_an),
+         "C": (("output", "state"), np.eye(n)),
+         "D": (("output", "input"), np.zeros((n, len(CONTROLS)))),
+         "eigenvalue": _eigen(A_an)},
+        coords={"state_dot": names, "state": names, "output": names, "input": list(CONTROLS),
+                "unit": ("state", [analysis_unit(model, s) for s in names])},
+        attrs={**attrs, "structure": "full"})
+
+    slow = [names.index(s) for s in STATES_6DOF]
+    fast = [k for k, s in enumerate(names) if s not in STATES_6DOF]
+    Ar, Br = residualize(A_an, B_an, slow, fast)
+    quasi = _quasi_steady_dataset(Ar, Br, trim, attrs)
+    return Linearization(full=full, quasi_steady=quasi, trim=trim)
+
+
+def _quasi_steady_dataset(Ar, Br, trim: TrimResult, attrs: dict) -> xr.Dataset:
+    states = list(STATES_6DOF)
+    values = trim.channel_values()
+    kin = rigid_body_terms(theta0=values["theta"], phi0=values["phi"], u0=values["u"],
+                           v0=values["v"], w0=values["w"], states=states).values
+    rows = [s for s in states if s in FORCE_LETTER]
+    names, value, matrix, row, column = [], [], [], [], []
+    for i, rname in enumerate(states):
+        if rname not in FORCE_LETTER:
+            continue
+        for j, cname in enumerate(states):
+            if cname in FORCE_LETTER:
+                names.append(derivative_name(rname, cname))
+                value.append(Ar[i, j] - kin[i, j])
+                matrix.append("A")
+                row.append(rname)
+                column.append(cname)
+    for i, rname in enumerate(states):
+        if rname not in rows:
+            continue
+        for j, cname in enumerate(CONTROLS):
+            names.append(derivative_name(rname, cname))
+            value.append(Br[i, j])
+            matrix.append("B")
+            row.append(rname)
+            column.append(cname)
+    n_par = len(names)
+    nan = np.full(n_par, np.nan)
+    ds = xr.Dataset(
+        {
+            "A": (("state_dot", "state"), Ar),
+            "B": (("state_dot", "input"), Br),
+            "C": (("output", "state"), np.eye(len(states))),
+            "D": (("output", "input"), np.zeros((len(states), len(CONTROLS)))),
+            "delay": (("state_dot", "input"), np.zeros((len(states), len(CONTROLS)))),
+            "trim_input": ("input", [values[c] for c in CONTROLS]),
+            "trim_output": ("output", [values[s] for s in states]),
+            "value": ("parameter", np.array(value)),
+            "cramer_rao": ("parameter", nan),
+            "cramer_rao_percent": ("parameter", nan),
+            "insensitivity": ("parameter", nan),
+            "insensitivity_percent": ("parameter", nan),
+            "free": ("parameter", np.ones(n_par, dtype=bool)),
+            "matrix": ("parameter", np.array(matrix)),
+            "row": ("parameter", np.array(row)),
+            "column": ("parameter", np.array(column)),
+            "eigenvalue": _eigen(Ar),
+        },
+        coords={"state_dot": states, "state": states, "input": list(CONTROLS),
+                "output": states, "parameter": names},
+        attrs={**attrs, "structure": "quasi_steady_6dof",
+               "derivative_convention": "named derivative = A_r entry minus "
+                                        "sysid.core.kinematics.rigid_body_terms(trim)",
+               "units": "ft/s, deg/s, deg, %"},
+    )
+    ds["A"].attrs["long_name"] = "quasi-steady state matrix (rotor/inflow/actuators residualised)"
+    ds["B"].attrs["long_name"] = "quasi-steady control matrix"
+    ds["delay"].attrs["units"] = "s"
+    ds["value"].attrs["long_name"] = "named stability and control derivatives"
+    for name in ("trim_input", "trim_output"):
+        ds[name].attrs["long_name"] = "absolute trim value, analysis units"
+    return ds
