@@ -1,0 +1,227 @@
+"""Structures from TOML files: the format, the parser and the built-in structures.
+
+:func:`structure_from_dict` documents the format; :func:`load_structure` reads a file or a
+built-in structure by name from :data:`STRUCTURES_DIR` (``sysid/models/structures/*.toml``).
+Values are in analysis units (ft/s, deg/s, deg, % of travel; delays in s; frequency range in
+rad/s); A/B entries on the 6-DoF force rows are named like the derivatives of paper Eq. 18.
+
+References
+----------
+* Tischler, M. B. and Remple, R. K., *Aircraft and Rotorcraft System Identification*, 2nd ed.,
+  AIAA, 2012, ch. 7 (state-space models with time delays).
+* "Comparison of frequency and time domain identification of a helicopter in hover" (the
+  reference paper of this project), Eq. 18-19.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from sysid.core.errors import InputDataError
+from sysid.core.kinematics import FORCE_LETTER, derivative_name, rigid_body_terms
+from sysid.core.units import CONTROLS
+from sysid.models.structure import (DELAY_BOUNDS, LinearStructure, Parameter, entry_name,
+                                    parse_delay_entry)
+
+__all__ = ["structure_from_dict", "load_structure", "structure_path", "builtin_structures",
+           "STRUCTURES_DIR"]
+
+#: Folder of the built-in TOML structures.
+STRUCTURES_DIR = Path(__file__).resolve().parent / "structures"
+
+
+def _parse_entry_key(key: str, matrix: str, states) -> tuple[str, str, str]:
+    """``"M_q"`` or ``"q,u"`` -> (name, row, column)."""
+    if "," in key:
+        row, col = (x.strip() for x in key.split(","))
+        if matrix in "AB" and row in FORCE_LETTER and (col in FORCE_LETTER or col in CONTROLS):
+            return derivative_name(row, col), row, col
+        return entry_name(matrix, row, col), row, col
+    letters = {v: k for k, v in FORCE_LETTER.items()}
+    if "_" in key and key.split("_", 1)[0] in letters:
+        letter, col = key.split("_", 1)
+        return key, letters[letter], col
+    raise InputDataError(f"matrix {matrix} entry {key!r}: use 'row,column' or a derivative name "
+                         f"like 'M_q'")
+
+
+def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = None,
+                        source: str = "<dict>") -> LinearStructure:
+    """Build a structure from its TOML description (already parsed).
+
+    Format (every table optional except ``states`` and ``inputs``)::
+
+        name = "hover_6dof"
+        description = "..."
+        states  = ["u", "v", "w", "p", "q", "r", "phi", "theta", "psi"]
+        inputs  = ["lon", "lat", "col", "ped"]
+        outputs = [...]                    # default: the states (C = I)
+
+        [kinematics]                       # fixed rigid-body terms in A (6-DoF states only)
+        theta0 = "trim"                    # deg; "trim" = from the data's trim_theta
+        phi0 = "trim"                      # deg; "trim" = trim_phi
+        u0 = "trim"                        # ft/s (also v0, w0); default "trim", else 0 if absent
+
+        [trim]                             # absolute trim values (optional; data trim wins)
+        lon = 66.18
+
+        [A]                                # entries "row,column" or derivative names
+        M_q = { value = -3.5 }             # free (default), start value
+        X_u = { value = 0.0, free = false }
+        "q,u" = 0.02                       # shorthand: free, start 0.02
+        L_p = { value = -10, lower = -50, upper = 0 }
+
+        [B]
+        M_lon = { value = 1.0 }
+
+        [C]                                # added to the default C (identity selection)
+        [D]
+
+        [delays]                           # per B entry ("row,input") or per input ("input")
+        tau_L_lon = { entry = "p,lon", value = 0.1 }             # bounds default 0 .. 0.3 s
+        tau_L_lat = { entry = "p,lat", value = 0.1, keep = true }  # never removed by reduction
+        tau_ped = { entry = "ped", value = 0.05, free = false }
+
+    A/B entries on the 6-DoF force rows get derivative names (``"q,u"`` -> ``M_u``); other
+    entries are named ``A[row,column]``. Entries not listed are fixed at the fixed part
+    (kinematics for A, zero otherwise).
+
+    Parameters
+    ----------
+    spec : mapping
+        The parsed TOML.
+    trim : mapping, optional
+        ``channel -> absolute trim value`` (analysis units), e.g. from a campaign's
+        ``trim_<channel>`` attributes; used for ``"trim"`` kinematics and the trim Dataset
+        variables.
+    source : str
+        File name for error messages.
+    """
+    trim = dict(trim or {})
+    try:
+        states = [str(s) for s in spec["states"]]
+        inputs = [str(s) for s in spec["inputs"]]
+    except KeyError as exc:
+        raise InputDataError(f"structure {source}: missing required key {exc.args[0]!r}") from None
+    outputs = [str(s) for s in spec.get("outputs", states)]
+    name = str(spec.get("name", Path(source).stem))
+    known_tables = {"name", "description", "states", "inputs", "outputs", "kinematics", "trim",
+                    "frequency_range",
+                    "A", "B", "C", "D", "delays"}
+    extra = set(spec) - known_tables
+    if extra:
+        raise InputDataError(f"structure {source}: unknown keys {sorted(extra)}; "
+                             f"known: {sorted(known_tables)}")
+    A0 = np.zeros((len(states), len(states)))
+    attrs = {}
+    if "kinematics" in spec:
+        kin = dict(spec["kinematics"])
+        resolved = {}
+        for key, channel in (("theta0", "theta"), ("phi0", "phi"), ("u0", "u"), ("v0", "v"),
+                             ("w0", "w")):
+            val = kin.get(key, "trim")
+            if val == "trim":
+                if channel in trim:
+                    val = trim[channel]
+                elif key in ("theta0", "phi0"):
+                    raise InputDataError(
+                        f"structure {source}: [kinematics] {key} = 'trim' needs the trim "
+                        f"attitude trim_{channel} (deg) from the data; none was given")
+                else:
+                    val = 0.0
+            resolved[key] = float(val)
+        try:
+            A0 = rigid_body_terms(**resolved, states=states).values
+        except ValueError as exc:
+            raise InputDataError(f"structure {source}: [kinematics] {exc}") from None
+        attrs = {"theta0_deg": resolved["theta0"], "phi0_deg": resolved["phi0"],
+                 "u0_ft_s": resolved["u0"], "v0_ft_s": resolved["v0"],
+                 "w0_ft_s": resolved["w0"], "kinematics": 1}
+    if "frequency_range" in spec:
+        # The band where the structure is a valid model (a quasi-steady model is only valid
+        # below the rotor, inflow and actuator modes); fits use it unless told otherwise.
+        band = spec["frequency_range"]
+        try:
+            lo, hi = (float(v) for v in band)
+        except (TypeError, ValueError):
+            raise InputDataError(f"structure {source}: frequency_range must be two numbers "
+                                 f"[omega_min, omega_max] in rad/s, got {band!r}") from None
+        if not 0.0 <= lo < hi:
+            raise InputDataError(f"structure {source}: frequency_range needs 0 <= omega_min < "
+                                 f"omega_max, got {band!r}")
+        attrs.update(fit_omega_min=lo, fit_omega_max=hi)
+    trim_all = dict(spec.get("trim", {}))
+    trim_all.update(trim)
+    params: list[Parameter] = []
+    for matrix in "ABCD":
+        for key, item in dict(spec.get(matrix, {})).items():
+            nm, row, col = _parse_entry_key(key, matrix, states)
+            item = {"value": item} if not isinstance(item, Mapping) else dict(item)
+            _check_fields(item, {"value", "free", "lower", "upper", "name", "keep"},
+                          f"structure {source}: [{matrix}] {key}")
+            params.append(Parameter(str(item.get("name", nm)), matrix, row, col,
+                                    float(item.get("value", 0.0)), bool(item.get("free", True)),
+                                    float(item.get("lower", -math.inf)),
+                                    float(item.get("upper", math.inf)),
+                                    bool(item.get("keep", False))))
+    for nm, item in dict(spec.get("delays", {})).items():
+        item = dict(item) if isinstance(item, Mapping) else {"entry": item}
+        if "entry" not in item:
+            raise InputDataError(f"structure {source}: [delays] {nm}: missing 'entry' "
+                                 f"('row,input' or 'input')")
+        _check_fields(item, {"entry", "value", "free", "lower", "upper", "keep"},
+                      f"structure {source}: [delays] {nm}")
+        row, col = parse_delay_entry(item["entry"], nm)
+        params.append(Parameter(str(nm), "delay", row, col, float(item.get("value", 0.05)),
+                                bool(item.get("free", True)),
+                                float(item.get("lower", DELAY_BOUNDS[0])),
+                                float(item.get("upper", DELAY_BOUNDS[1])),
+                                bool(item.get("keep", False))))
+    return LinearStructure(states=states, inputs=inputs, outputs=outputs, A0=A0,
+                           parameters=params,
+                           trim_input={k: v for k, v in trim_all.items() if k in inputs},
+                           trim_output={k: v for k, v in trim_all.items() if k in outputs},
+                           name=name, description=str(spec.get("description", "")), attrs=attrs)
+
+
+def _check_fields(item: Mapping, allowed: set[str], where: str) -> None:
+    bad = set(item) - allowed
+    if bad:
+        raise InputDataError(f"{where}: unknown fields {sorted(bad)} "
+                             f"({', '.join(sorted(allowed))})")
+
+
+def builtin_structures() -> dict[str, Path]:
+    """Built-in TOML structures shipped in ``sysid/models/structures``: ``name -> path``."""
+    return {p.stem: p for p in sorted(STRUCTURES_DIR.glob("*.toml"))}
+
+
+def structure_path(source: str | Path) -> Path:
+    """The TOML file of a structure: ``source`` itself, or the built-in one of that name."""
+    path = Path(source)
+    builtin = builtin_structures()
+    if not path.exists() and str(source) in builtin:
+        path = builtin[str(source)]
+    if not path.exists():
+        raise InputDataError(f"structure file {source} not found (built-in structures: "
+                             f"{sorted(builtin)})")
+    return path
+
+
+def load_structure(source: str | Path, *, trim: Mapping[str, float] | None = None
+                   ) -> LinearStructure:
+    """A structure from a TOML file, or a built-in one by name (e.g. ``"hover_6dof"``).
+
+    See :func:`structure_from_dict` for the format and the meaning of ``trim``.
+    """
+    path = structure_path(source)
+    try:
+        spec = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise InputDataError(f"structure file {path}: invalid TOML: {exc}") from None
+    return structure_from_dict(spec, trim=trim, source=str(path))
