@@ -23,11 +23,9 @@ import numpy as np
 import xarray as xr
 
 from sysid.core.errors import InputDataError
-
-#: Guideline: J_rms <= 1-2 is acceptable with unit weights per ft/s, deg/s, deg.
-J_RMS_GUIDELINE = 2.0
-#: Guideline: TIC <= 0.25-0.3 indicates good predictive capability.
-TIC_GUIDELINE = 0.25
+from sysid.core.guidelines import COHERENCE_MIN
+from sysid.core.guidelines import J_RMS_MAX as J_RMS_GUIDELINE
+from sysid.core.guidelines import TIC_MAX as TIC_GUIDELINE
 
 
 @dataclass(frozen=True)
@@ -189,7 +187,7 @@ def check_envelope(
     error: xr.Dataset,
     envelope: Envelope = MUAD,
     coherence: xr.DataArray | None = None,
-    min_coherence: float = 0.6,
+    min_coherence: float = COHERENCE_MIN,
 ) -> xr.Dataset:
     """Judge a mismatch (from :func:`mismatch`) against an envelope.
 

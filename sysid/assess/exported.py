@@ -22,6 +22,7 @@ import numpy as np
 import xarray as xr
 
 from sysid.core.errors import FMUError, InputDataError
+from sysid.core.guidelines import COHERENCE_MIN
 from sysid.core.units import CHANNELS, channel_attrs, conversion_factor
 
 __all__ = ["simulate_exported", "roundtrip_error", "compare_with_truth", "envelope_check",
@@ -385,7 +386,7 @@ def _envelopes(envelopes) -> list:
 
 def envelope_check(model_ds: xr.Dataset | Mapping[str, xr.Dataset],
                    frequency_response_ds: xr.Dataset, envelopes=None, *,
-                   min_coherence: float = 0.6) -> xr.Dataset:
+                   min_coherence: float = COHERENCE_MIN) -> xr.Dataset:
     """Mismatch of model(s) against composite frequency responses, judged by envelopes.
 
     Parameters

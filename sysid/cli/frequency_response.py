@@ -15,9 +15,10 @@ import fnmatch
 import numpy as np
 
 from sysid.core.errors import InputDataError
+from sysid.core.guidelines import COHERENCE_MIN
 
-#: Coherence guideline for a usable frequency range (methods.md).
-COHERENCE_GUIDELINE = 0.6
+#: Coherence guideline for a usable frequency range.
+COHERENCE_GUIDELINE = COHERENCE_MIN
 
 
 def _floats(text: str) -> list[float]:

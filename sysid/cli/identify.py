@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 
 from sysid.core.errors import InputDataError
+from sysid.core.guidelines import COHERENCE_MIN
 
 
 def register(subparsers) -> None:
@@ -34,8 +35,8 @@ def register(subparsers) -> None:
                    help="comma-separated output/input pairs, e.g. q/lon,p/lat "
                         "(default: the paper's 13 pairs)")
     p.add_argument("--no-reduction", action="store_true", help="skip the model reduction")
-    p.add_argument("--coherence-min", type=float, default=0.6,
-                   help="coherence defining each pair's fitted range (default 0.6)")
+    p.add_argument("--coherence-min", type=float, default=COHERENCE_MIN,
+                   help=f"coherence defining each pair's fitted range (default {COHERENCE_MIN})")
     p.add_argument("--points", type=int, default=20,
                    help="log-spaced frequency points per pair (default 20)")
     p.add_argument("--start", choices=("auto", "linearization", "equation-error", "structure"),

@@ -53,6 +53,7 @@ import scipy.optimize
 import xarray as xr
 
 from sysid.core.errors import IdentificationError, InputDataError
+from sysid.core.guidelines import COHERENCE_MIN
 from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
                                       stepwise_reduction)
 from sysid.identify.statistics import (FitResultParameters, ParameterStatistics,
@@ -81,7 +82,6 @@ DEFAULT_PAIRS = (("q", "lon"), ("p", "lon"), ("u", "lon"), ("p", "lat"), ("q", "
                  ("q", "col"), ("r", "ped"), ("v", "ped"))
 W_G = 1.0  #: magnitude weight (per dB^2), methods.md
 W_P = 0.01745  #: phase weight (per deg^2), methods.md
-COHERENCE_MIN = 0.6  #: coherence guideline for the fitted range (paper, methods.md)
 N_POINTS = 20  #: frequency points per pair (methods.md)
 #: A free parameter has "run away" when the fit ends with it this many times larger than its
 #: start value (and than 1 in analysis units) and its Cramer-Rao bound is unbounded or above

@@ -25,14 +25,11 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from sysid.core.guidelines import REDUCTION_GUIDELINES as GUIDELINES
 from sysid.identify.statistics import ParameterStatistics, format_percent
 
 __all__ = ["FitOutcome", "ReductionStep", "ReductionResult", "stepwise_reduction",
            "GUIDELINES"]
-
-#: Default guidelines (methods.md): Cramer-Rao bound <= 20 % and insensitivity <= 10 % of the
-#: parameter value; a removal may raise the cost by at most 2 (units of J_ave).
-GUIDELINES = {"cr_max": 20.0, "insensitivity_max": 10.0, "max_cost_increase": 2.0}
 
 
 @dataclass

@@ -35,6 +35,8 @@ from typing import Sequence
 import numpy as np
 import xarray as xr
 
+from sysid.core.guidelines import CR_MAX_PERCENT, INSENSITIVITY_MAX_PERCENT
+
 __all__ = ["ParameterStatistics", "parameter_statistics", "correlated_pairs"]
 
 #: Relative eigenvalue threshold of the normalised Hessian below which a direction is
@@ -81,8 +83,8 @@ class ParameterStatistics:
         """Names of the parameters the data say nothing about."""
         return tuple(n for n, ok in zip(self.names, self.identifiable) if not ok)
 
-    def breaks_guidelines(self, *, cr_max: float = 20.0, insensitivity_max: float = 10.0
-                          ) -> np.ndarray:
+    def breaks_guidelines(self, *, cr_max: float = CR_MAX_PERCENT,
+                          insensitivity_max: float = INSENSITIVITY_MAX_PERCENT) -> np.ndarray:
         """True where ``CR% > cr_max`` or ``I% > insensitivity_max`` (or unidentifiable)."""
         return (~self.identifiable | (self.cramer_rao_percent > cr_max)
                 | (self.insensitivity_percent > insensitivity_max))

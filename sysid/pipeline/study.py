@@ -35,6 +35,7 @@ import xarray as xr
 
 import sysid
 from sysid.core.errors import SysidError
+from sysid.core.guidelines import COHERENCE_MIN
 from sysid.core.util import Progress
 
 STAGES = ("campaign", "frequency_response", "identify", "identify_time", "verify",
@@ -46,7 +47,7 @@ STAGES = ("campaign", "frequency_response", "identify", "identify_time", "verify
 #: derivatives: J_rms 0.43-1.96 on the four 2311 manoeuvres, every dominant derivative
 #: within 27 % of the truth. At 0.4 (used before N_w was in the structure; measured on the
 #: campaign before its cubic lateral rise) 2311_col and 2311_ped reached J_rms 2.08 and 2.01.
-FD_COHERENCE_MIN_HOVER = 0.6
+FD_COHERENCE_MIN_HOVER = COHERENCE_MIN
 #: In forward flight (`forward_6dof`, 80 kt) points down to coherence 0.4 are admitted, with
 #: W_gamma weighting the weak ones down: at 0.6 the 80-kt fit ran away (L_p, L_lat and L_v
 #: towards 1e19, the model unusable), at 0.4 it stays finite.

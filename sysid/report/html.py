@@ -57,8 +57,8 @@ from sysid.core.errors import InputDataError
 from sysid.models import frequency_response
 from sysid.core.units import CHANNELS, CONTROLS, STATES_6DOF
 from sysid.core.util import Progress
-from sysid.assess.envelopes import J_RMS_GUIDELINE, MUAD, TIC_GUIDELINE, Envelope, check_envelope, \
-    mismatch
+from sysid.assess.envelopes import MUAD, Envelope, check_envelope, mismatch
+from sysid.core.guidelines import GUIDELINES
 
 __all__ = ["write_report", "PAPER_PAIRS", "GUIDELINES", "build_html"]
 
@@ -73,18 +73,6 @@ PAIR_FIGURES = {"p/lon": (4, 8), "q/lon": (5, 9), "p/lat": (6, 10), "q/lat": (7,
                 "w/col": (12,), "r/col": (13,), "v/ped": (14,), "r/ped": (15,)}
 #: Paper figure number of the time-domain verification per excited control (Figures 16-19).
 TIME_FIGURES = {"lon": 16, "lat": 17, "col": 18, "ped": 19}
-
-#: Guideline thresholds (methods.md); every one is a documented default.
-GUIDELINES = {
-    "J_ave": 100.0,  # average CIFER cost
-    "pair_J": 200.0,  # cost of every input/output pair
-    "cramer_rao_percent": 20.0,  # Cramer-Rao bound, % of |value|
-    "insensitivity_percent": 10.0,  # insensitivity, % of |value|
-    "j_rms": J_RMS_GUIDELINE,  # time-domain J_rms
-    "tic": TIC_GUIDELINE,  # Theil's inequality coefficient
-    "coherence": 0.6,  # composite coherence over the fitted range
-    "cross_coherence": 0.5,  # cross-control coherence
-}
 
 #: Greek symbols of the attitudes, as in the paper's Table 1.
 _SYMBOL = {"phi": "φ", "theta": "θ", "psi": "ψ"}

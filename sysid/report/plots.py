@@ -25,6 +25,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from sysid.core.guidelines import COHERENCE_MIN
+
 __all__ = [
     "DPI",
     "color_of",
@@ -41,8 +43,8 @@ __all__ = [
 
 #: Resolution of the PNG files (modest, for a fast report of a few dozen figures).
 DPI = 96
-#: Coherence guideline drawn on every coherence axis (methods.md: gamma^2 >= 0.6).
-COHERENCE_GUIDELINE = 0.6
+#: Coherence guideline drawn on every coherence axis.
+COHERENCE_GUIDELINE = COHERENCE_MIN
 
 #: Fixed colours and line styles per source, so every figure uses the same legend.
 _STYLE = {
