@@ -25,7 +25,7 @@ from browser import chromium  # noqa: F401  (pytest fixture)
 import sysid.report.plots
 from sysid.models import frequency_response, load_structure, simulate
 from sysid.report.html import PAPER_PAIRS, write_report
-from sysid.assess.envelopes import j_rms, theil_inequality
+from sysid.assess.metrics import j_rms, theil_inequality
 
 REPO = Path(__file__).resolve().parents[1]
 TRIM = {"u": 0.0, "v": 0.0, "w": 0.0, "p": 0.0, "q": 0.0, "r": 0.0, "phi": -2.87,

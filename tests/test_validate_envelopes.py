@@ -5,7 +5,8 @@ import pytest
 import xarray as xr
 
 from sysid.core.errors import InputDataError
-from sysid.assess.envelopes import MUAD, check_envelope, j_rms, load_envelope, mismatch, theil_inequality
+from sysid.assess.envelopes import MUAD, check_envelope, load_envelope, mismatch
+from sysid.assess.metrics import j_rms, theil_inequality
 
 OMEGA = np.logspace(-1, 2, 121)
 

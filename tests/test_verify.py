@@ -13,7 +13,7 @@ from known_systems import (PLAN_2311, PLAN_3211, TRIM, add_noise, multistep_reco
                            truth_structure)
 
 from sysid.core.errors import IdentificationError, InputDataError
-from sysid.assess.envelopes import J_RMS_GUIDELINE, TIC_GUIDELINE
+from sysid.assess.metrics import J_RMS_GUIDELINE, TIC_GUIDELINE
 from sysid.assess.verification import merge_verifications, verification_table, verify, verify_maneuvers
 
 OUTPUT_BIAS = {"q": 0.7, "u": -0.3, "psi": 1.2}

@@ -1,4 +1,4 @@
-"""Validation: mismatch envelopes (paper Eq. 20) and time-domain fit metrics.
+"""Validation in the frequency domain: mismatch envelopes (paper Eq. 20).
 
 Frequency domain
     The mismatch of a model against reference data is ``M(jw) = T_model(jw) / T_ref(jw)``
@@ -8,9 +8,7 @@ Frequency domain
     (e.g. the AEE of Mitchell et al. 2006, whose coefficients we could not verify from public
     sources and therefore do not ship) from a TOML file.
 
-Time domain
-    ``J_rms`` and Theil's inequality coefficient (TIC) of a simulated response against
-    measured data, with the customary guideline values (Tischler & Remple 2012, ch. 14).
+The time-domain metrics (J_rms, TIC) are in :mod:`sysid.assess.metrics`.
 """
 
 from __future__ import annotations
@@ -24,8 +22,6 @@ import xarray as xr
 
 from sysid.core.errors import InputDataError
 from sysid.core.guidelines import COHERENCE_MIN
-from sysid.core.guidelines import J_RMS_MAX as J_RMS_GUIDELINE
-from sysid.core.guidelines import TIC_MAX as TIC_GUIDELINE
 
 
 @dataclass(frozen=True)
@@ -222,29 +218,3 @@ def check_envelope(
         attrs={"envelope": envelope.name, "citation": envelope.citation,
                "min_coherence": min_coherence},
     )
-
-
-def theil_inequality(measured: xr.DataArray, simulated: xr.DataArray, dim: str = "time"):
-    """Theil's inequality coefficient ``rms(z - y) / (rms(z) + rms(y))`` along ``dim``.
-
-    0 is a perfect match, 1 the worst; <= 0.25-0.3 is the customary guideline.
-    """
-    rms = lambda x: np.sqrt((x**2).mean(dim))  # noqa: E731
-    return rms(measured - simulated) / (rms(measured) + rms(simulated))
-
-
-def j_rms(measured: xr.Dataset, simulated: xr.Dataset, weights: dict | None = None,
-          dim: str = "time") -> float:
-    """``J_rms = sqrt( 1/(n_t n_o) sum_t sum_j W_j (z_j - y_j)^2 )`` over common channels.
-
-    Channels are in analysis units; the default weights are 1 per ft/s, deg/s and deg, the
-    customary choice that makes ``J_rms <= 1-2`` the acceptance guideline.
-    """
-    names = [n for n in simulated.data_vars if n in measured.data_vars]
-    if not names:
-        raise InputDataError("j_rms: measured and simulated data share no channel")
-    weights = weights or {}
-    total = sum(float(weights.get(n, 1.0) * ((measured[n] - simulated[n]) ** 2).sum(dim))
-                for n in names)
-    n_t = measured.sizes[dim]
-    return float(np.sqrt(total / (n_t * len(names))))

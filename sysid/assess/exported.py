@@ -24,6 +24,15 @@ import xarray as xr
 from sysid.core.errors import FMUError, InputDataError
 from sysid.core.guidelines import COHERENCE_MIN
 from sysid.core.units import CHANNELS, channel_attrs, conversion_factor
+from sysid.fmi.runtime import inspect_archive
+from sysid.models import frequency_response
+from sysid.models import simulate as simulate_model
+from sysid.signals.inputs import multistep
+from sysid.truth import build_fmu
+from sysid.truth import simulate as simulate_truth
+from sysid.truth import trim as trim_truth
+from sysid.assess.envelopes import MUAD, Envelope, check_envelope, load_envelope, mismatch
+from sysid.assess.metrics import j_rms, theil_inequality
 
 __all__ = ["simulate_exported", "roundtrip_error", "compare_with_truth", "envelope_check",
            "verification_inputs"]
@@ -49,9 +58,7 @@ class _Exported:
     """The FMI view of an exported FMU: names, value references, units, trims."""
 
     def __init__(self, path):
-        from fmpy import read_model_description
-
-        from sysid.fmi.runtime import inspect_archive
+        from fmpy import read_model_description  # deferred: fmpy is optional
 
         self.path = Path(path)
         if not self.path.is_file():
@@ -240,12 +247,10 @@ def roundtrip_error(model_ds: xr.Dataset, fmu_path, inputs: xr.Dataset, *,
     by the peak of the model's response (perturbation); attr ``max_relative_error`` is the
     largest over the outputs that respond.
     """
-    from sysid.models import simulate
-
     names = [str(k) for k in model_ds["B"].input.values]
     full = inputs.assign({k: ("time", np.zeros(inputs.sizes["time"]))
                           for k in names if k not in inputs})
-    ref = simulate(model_ds, full, absolute=False)
+    ref = simulate_model(model_ds, full, absolute=False)
     got = simulate_exported(fmu_path, inputs, mode=mode, rtol=rtol)
     outputs = [str(o) for o in model_ds["C"].output.values]
     trim = (model_ds["trim_output"].sel(output=outputs).values if "trim_output" in model_ds
@@ -279,8 +284,6 @@ def verification_inputs(dt: float = 0.01) -> dict[str, xr.Dataset]:
     """The default verification manoeuvres: a 3211 on every control and a 2311 on lon and
     lat (perturbations, %); short pulses and lead-outs keep the unstable hover modes of the
     truth model within its linear range."""
-    from sysid.signals.inputs import multistep
-
     out = {}
     for kind, axis, width, amp in (("3211", "lon", 0.4, 2.0), ("3211", "lat", 0.3, 2.0),
                                    ("3211", "col", 0.5, 3.0), ("3211", "ped", 0.4, 3.0),
@@ -318,15 +321,12 @@ def compare_with_truth(exported_fmu, truth_fmu=None, inputs: xr.Dataset | None =
         ``source = ["truth", <model>]`` (analysis units, absolute); ``tic (source, channel)``
         and ``j_rms (source)`` of each source against the truth (0 for the truth itself).
     """
-    from sysid.truth import build_fmu, simulate, trim as trim_fn
-    from sysid.assess.envelopes import j_rms, theil_inequality
-
     if inputs is None:
         raise InputDataError("compare_with_truth needs the inputs (control perturbations, %)")
     truth_path = Path(truth_fmu) if truth_fmu is not None else build_fmu()
     fmu = _Exported(exported_fmu)
     if trim is None:
-        trim = trim_fn(0.0, fmu=truth_path)
+        trim = trim_truth(0.0, fmu=truth_path)
     label = model_name or fmu.md.modelName
     t = _time_grid(inputs)
     controls = trim.channel_values()
@@ -334,7 +334,7 @@ def compare_with_truth(exported_fmu, truth_fmu=None, inputs: xr.Dataset | None =
                                if c in inputs else np.full(len(t), controls[c]),
                                {"units": "%"}) for c in ("lon", "lat", "col", "ped")},
                           coords={"time": t}, attrs=dict(inputs.attrs))
-    truth = simulate(absolute, trim, mode="cs", fmu=truth_path)
+    truth = simulate_truth(absolute, trim, mode="cs", fmu=truth_path)
     model = simulate_exported(fmu.path, absolute, mode="cs", absolute=True)
     channels = [c for c in channels if c in truth and c in model]
     if not channels:
@@ -368,8 +368,6 @@ def compare_with_truth(exported_fmu, truth_fmu=None, inputs: xr.Dataset | None =
 
 
 def _envelopes(envelopes) -> list:
-    from sysid.assess.envelopes import MUAD, Envelope, load_envelope
-
     out = []
     for env in (envelopes if envelopes is not None else [MUAD]):
         if isinstance(env, Envelope):
@@ -409,9 +407,6 @@ def envelope_check(model_ds: xr.Dataset | Mapping[str, xr.Dataset],
         ``magnitude`` (dB) and ``phase`` (deg) ``(model, output, input, frequency)``; the
         ``model`` dim is dropped for a single Dataset.
     """
-    from sysid.models import frequency_response
-    from sysid.assess.envelopes import check_envelope, mismatch
-
     single = isinstance(model_ds, xr.Dataset)
     models = {"model": model_ds} if single else dict(model_ds)
     if "H" not in frequency_response_ds:

@@ -23,10 +23,10 @@ input c (a step at t = 0, delays included). The constants minimise
 so the reported ``J_rms`` is the smallest the held model can reach. Unidentifiable
 combinations (e.g. an input without effect) get the minimum-norm solution.
 
-Metrics, per model and manoeuvre: ``J_rms`` (:func:`sysid.assess.envelopes.j_rms`, default weights
-1 per ft/s, deg/s, deg; guideline :data:`sysid.assess.envelopes.J_RMS_GUIDELINE`) and Theil's
-inequality coefficient per output (:func:`sysid.assess.envelopes.theil_inequality`, guideline
-:data:`sysid.assess.envelopes.TIC_GUIDELINE`), both on the perturbations about the record's trim (TIC
+Metrics, per model and manoeuvre: ``J_rms`` (:func:`sysid.assess.metrics.j_rms`, default weights
+1 per ft/s, deg/s, deg; guideline :data:`sysid.assess.metrics.J_RMS_GUIDELINE`) and Theil's
+inequality coefficient per output (:func:`sysid.assess.metrics.theil_inequality`, guideline
+:data:`sysid.assess.metrics.TIC_GUIDELINE`), both on the perturbations about the record's trim (TIC
 of absolute values would be dominated by the trim).
 
 Result layout (docs/data_model.md, ``/verification/<maneuver>``): one variable per output
@@ -48,7 +48,7 @@ import xarray as xr
 from sysid.core.errors import IdentificationError, InputDataError
 from sysid.models import simulate
 from sysid.core.units import CHANNELS, channel_attrs
-from sysid.assess.envelopes import J_RMS_GUIDELINE, TIC_GUIDELINE, j_rms, theil_inequality
+from sysid.assess.metrics import J_RMS_GUIDELINE, TIC_GUIDELINE, j_rms, theil_inequality
 
 __all__ = ["ESTIMATES", "verify", "verify_maneuvers", "merge_verifications",
            "verification_table"]

@@ -22,8 +22,8 @@ structure's values.
 simulates each model with the recorded inputs of each selected manoeuvre, estimating only
 output biases and input reference shifts (:func:`sysid.assess.verification.verify`), stores
 ``/verification/<maneuver>`` (merged with the sources already there) and prints J_rms and
-TIC per output with PASS/FAIL against :data:`sysid.assess.envelopes.J_RMS_GUIDELINE` and
-:data:`sysid.assess.envelopes.TIC_GUIDELINE`.
+TIC per output with PASS/FAIL against :data:`sysid.assess.metrics.J_RMS_GUIDELINE` and
+:data:`sysid.assess.metrics.TIC_GUIDELINE`.
 """
 
 from __future__ import annotations
