@@ -89,6 +89,8 @@ import scipy.optimize
 import xarray as xr
 
 from sysid.core.errors import IdentificationError, InputDataError
+from sysid.core.util import Progress
+from sysid.data.io import validate_time_history
 from sysid.identify.reduction import GUIDELINES, FitOutcome, ReductionResult, stepwise_reduction
 from sysid.identify.statistics import (FitResultParameters, ParameterStatistics,
                                       parameter_rows, parameter_statistics, perturbed_start)
@@ -196,8 +198,6 @@ def prepare_records(records: Sequence[xr.Dataset], structure: LinearStructure,
     Raises :class:`~sysid.core.errors.InputDataError` naming the manoeuvre and channel when an
     input or output is missing, not finite, or the time grid is not uniform.
     """
-    from sysid.data.io import validate_time_history
-
     if isinstance(records, xr.Dataset):
         records = [records]
     if not len(records):
@@ -843,8 +843,6 @@ def identify_time_domain(records, structure: LinearStructure, *,
     -------
     TimeFitResult
     """
-    from sysid.core.util import Progress
-
     t_start = time.perf_counter()
     progress = progress or Progress(quiet=quiet)
     if isinstance(records, xr.Dataset):
