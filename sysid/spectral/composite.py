@@ -4,19 +4,15 @@ Short windows average many segments (low random error) but resolve low frequenci
 long windows reach low frequencies with fewer averages. Compositing combines them frequency by
 frequency.
 
-Window lengths (:func:`default_windows`, methods.md)
+Window lengths (:func:`default_windows`; docs/methods.md, "Composite windowing")
     longest ``T_max = min(T_record / 2, T_total / 5)`` (``T_record`` the shortest record,
     ``T_total`` all records together), shortest ``T_min = 20 / f_max`` (20 periods of the
     highest frequency of interest, ``f_max = omega_max / 2 pi`` in Hz), ``n_windows`` (default
     5) lengths log-spaced in between. A window is trusted only at ``omega >= 2 pi / T``
-    (:func:`trusted`, one period per window, methods.md); elsewhere its weight is zero. Windows
+    (:func:`trusted`, one period per window; a stricter rule changed nothing measurable,
+    docs/notes/2026-11-21-composite-trusted-band.md); elsewhere its weight is zero. Windows
     with fewer than 5 independent averages are refused before this stage
-    (:func:`sysid.spectral.spectra.check_window`), and ``n_d = T_r / T`` does not vary with frequency.
-    A stricter minimum of 2 or 3 periods per window (the window down-weighted a thousandfold
-    below it, as leakage and resolution bias grow there) was measured on the reference MIMO
-    system of ``tests/linear_systems.py``: it changed the whole-band RMS error of the composite
-    by less than 0.001, noise-free and with output noise, so the one-period rule of methods.md
-    is kept (it also keeps the default grid, which starts at ``2 pi / T_max``, fully covered).
+    (:func:`sysid.spectral.spectra.check_window`); ``n_d = T_r / T`` does not vary with frequency.
 
 Weights (Eq. 14)
     ``W_i = (eps_i / eps_min)^-4`` with ``eps_i`` the window's random error -- Eq. 13 from the
@@ -31,53 +27,34 @@ Cost (Eq. 16), minimised at every frequency over the composite pair spectra
                     + 5 ((g2_c - g2_i) / g2^)^2 ],     g2_c = |Gxy_c|^2 / (Gxx_c Gyy_c)
 
 with ``g2_i`` the windows' partial coherences and ``g2^`` their ``W^2``-weighted average as
-in Eq. 15. The coherence term, with the paper's weight 5, is kept. What differs from the
-printed Eq. 16 is the scale ``s`` of the four spectral terms (see "Normalisation" below): the
-spread of the windows' values of that spectrum about their ``W``-weighted mean ``xbar``,
-``s_x^2 = sum_i W_i |x_i - xbar|^2 / sum_i W_i`` (floored at ``DISPERSION_FLOOR |xbar|``), one
-complex spread for both parts of ``Gxy``. Because ``sum_i W_i (x - x_i)^2 = (sum_i W_i)(x -
-xbar)^2 + const``, the cost is a 4-parameter nonlinear least-squares problem per frequency,
-solved by Levenberg-Marquardt vectorised over all frequencies at once (in the variables
-``x / s`` the Jacobian is the identity plus the rank-one coherence term, so each step is
-closed-form by Sherman-Morrison), starting from the ``W``-weighted means. Then
-``H_c = Gxy_c / Gxx_c`` (Eq. 17) and the composite coherence is ``g2_c``.
+in Eq. 15; the coherence term keeps the paper's weight 5. Then ``H_c = Gxy_c / Gxx_c``
+(Eq. 17) and the composite coherence is ``g2_c``.
 
-Normalisation (why not the Eq. 15 averages)
-    The paper divides the spectral terms by the ``W^2``-weighted averages of Eq. 15 (and the
-    cross spectrum by ``Re Gxy^``, ``Im Gxy^``, which pass through zero whenever the phase
-    crosses a multiple of 90 deg -- methods.md calls that ill-conditioned). The scales decide
-    *which* composite spectrum absorbs the coherence term. Where the windows disagree, the
-    coherence of the averaged spectra falls below the average of the windows' coherences and
-    the coherence term must move the spectra to close the gap. With scales proportional to
-    the spectra themselves (Eq. 15 averages, or ``|Gxy^|``) a relative change costs the same
-    in every spectrum, while ``g2_c`` is twice as sensitive to ``|Gxy_c|`` as to ``Gxx_c`` or
-    ``Gyy_c``: about 5/6 of the correction then lands in ``Gxy_c / Gxx_c``, i.e. in ``H``.
-    That is what happened: on the reference MIMO system (5 windows 4.2-50 s, 100 frequencies
-    0.13-30 rad/s) the windows' *conditioned output spectra* ``Gyy_i`` around the 5 rad/s
-    mode differ by up to 75x (the short windows smear the lightly damped a -> y1 mode into
-    the output conditioned for input b) while their ``Gxx_i`` and ``Gxy_i`` agree within a
-    few percent; the minimum of the paper-scaled cost -- verified with a general optimiser --
-    put ``Gxx_c`` at a quarter of every window's value and ``H`` of y1/b off by a factor of
-    4.8, and the whole-band RMS error of ``H`` was 0.22 noise-free and 0.20 with output
-    noise, against 0.044 and 0.085 for the best single window. Dividing each term by the
-    windows' own spread makes it a misfit measured against how well the windows agree on
-    that spectrum: the coherence correction goes to the spectrum the windows disagree on
-    (here ``Gyy``, which ``H`` does not depend on), in keeping with Eq. 17's premise that the
-    noise is on the output. With it, whole-band RMS error 0.042 noise-free (best window
-    0.044) and 0.058 with output noise (best window 0.085); coherent band (partial coherence
-    >= 0.6) 0.032 with noise (best window 0.040). The composite coherence also follows the
-    windows' mean coherence instead of being bought with a distorted ``H``. Windows that
-    agree exactly (zero spread, floored) are a fixed point. Remaining limitation: the Eq. 14
-    weights see only random error, not resolution bias, so in noise-free data the composite
-    is slightly behind the longest window where the coherence is high (0.022 vs 0.021 where
-    the partial coherence is >= 0.6) while ahead of it over the whole band.
-    ``scale="average"`` gives the Eq. 15 scaling (``|Gxy^|`` for both cross-spectrum terms)
-    for comparison.
+Scales ``s`` (where this differs from the printed Eq. 16): the spread of the windows' values of
+that spectrum about their ``W``-weighted mean ``xbar``, ``s_x^2 = sum_i W_i |x_i - xbar|^2 /
+sum_i W_i`` (floored at ``DISPERSION_FLOOR |xbar|``), one complex spread for both parts of
+``Gxy``. Why: with the Eq. 15 averages (or ``Re``/``Im`` of ``Gxy^``, which cross zero) the
+coherence correction lands in ``H``; with the spread it lands on the spectrum the windows
+disagree on (docs/notes/2026-11-21-composite-normalisation.md). ``scale="average"`` gives the
+Eq. 15 scaling (``|Gxy^|`` for both cross-spectrum terms) for comparison.
+
+Solution: since ``sum_i W_i (x - x_i)^2 = (sum_i W_i)(x - xbar)^2 + const``, the cost is a
+4-parameter nonlinear least-squares problem per frequency, solved by Levenberg-Marquardt
+vectorised over all frequencies (in the variables ``x / s`` the Jacobian is the identity plus
+the rank-one coherence term, so each step is closed-form by Sherman-Morrison), starting from
+the ``W``-weighted means.
 
 Composite random error
     ``eps_c = sum_i W_i eps_i / sum_i W_i``: the windows use the same data, so their errors are
     strongly correlated and the composite cannot be trusted more than its best windows; this
     weighted mean is close to ``eps_min`` since the Eq. 14 weights fall off as ``eps^-4``.
+
+References
+----------
+* Tischler, M. B. and Remple, R. K., *Aircraft and Rotorcraft System Identification*, 2nd ed.,
+  AIAA, 2012 (CIFER's COMPOSITE).
+* *Comparison of frequency and time domain identification of a helicopter in hover*
+  (Eq. 14-17).
 """
 
 from __future__ import annotations
