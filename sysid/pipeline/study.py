@@ -41,16 +41,11 @@ from sysid.core.util import Progress
 STAGES = ("campaign", "frequency_response", "identify", "identify_time", "verify",
           "compare", "validate", "report")
 
-#: The study's coherence admission in hover: the paper's 0.6 guideline (the library default).
-#: Checked by time-domain verification on unseen 2311 data (the paper's conclusion 4), on
-#: the default hover campaign with `hover_6dof` carrying N_w and keeping the speed
-#: derivatives: J_rms 0.43-1.96 on the four 2311 manoeuvres, every dominant derivative
-#: within 27 % of the truth. At 0.4 (used before N_w was in the structure; measured on the
-#: campaign before its cubic lateral rise) 2311_col and 2311_ped reached J_rms 2.08 and 2.01.
+#: The study's coherence admission in hover: the paper's 0.6 guideline (the library default),
+#: checked by 2311 verification (docs/notes/2026-11-24-study-coherence-admission.md).
 FD_COHERENCE_MIN_HOVER = COHERENCE_MIN
 #: In forward flight (`forward_6dof`, 80 kt) points down to coherence 0.4 are admitted, with
-#: W_gamma weighting the weak ones down: at 0.6 the 80-kt fit ran away (L_p, L_lat and L_v
-#: towards 1e19, the model unusable), at 0.4 it stays finite.
+#: W_gamma weighting the weak ones down: at 0.6 the 80-kt fit ran away (same note).
 FD_COHERENCE_MIN_FORWARD = 0.4
 
 
