@@ -23,6 +23,24 @@ def test_conversions_match_definitions():
         units.convert(1.0, "furlong", "m")
 
 
+def test_percent_is_the_dimensionless_hundredth_in_every_table():
+    """One unit table: % is 1/100 of the dimensionless unit (SI; FMI 2.0 factor 0.01), for
+    conversion and for the FMI unit definitions of the truth and the exported FMUs."""
+    from sysid.fmi.description import UnitDefinition
+
+    assert units.convert(50.0, "%", "1") == pytest.approx(0.5)
+    assert units.convert(12.5, "%", "percent") == 12.5
+    assert units.convert(12.5, "%", "%") == 12.5
+    with pytest.raises(ValueError, match="different dimensions"):
+        units.convert(1.0, "%", "rad")
+    percent = UnitDefinition.of("%")
+    assert percent.exponents == () and percent.factor == 0.01
+    # N.m = kg m2 s-2 in FMI's base-unit order; rad/s displays deg/s at 180/pi
+    assert UnitDefinition.of("N.m").exponents == (("kg", 1), ("m", 2), ("s", -2))
+    (name, factor), = UnitDefinition.of("rad/s").displays
+    assert name == "deg/s" and factor == pytest.approx(180.0 / math.pi, rel=1e-15)
+
+
 def test_rigid_body_terms_against_nonlinear_kinematics():
     """Finite-difference the nonlinear gravity/Euler equations and compare with the terms."""
     theta0, phi0, u0, v0, w0 = 6.76, -2.87, 12.0, -1.5, 3.0

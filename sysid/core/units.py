@@ -18,45 +18,56 @@ DEG = math.pi / 180.0  #: radians per degree
 KT = 1852.0 / 3600.0  #: metres per second per knot (exact)
 G0 = 9.80665  #: standard gravity, m/s^2
 
-# Multiplicative factors from a unit to its SI base. Only units that occur in this project.
-_TO_SI = {
-    "1": 1.0,
-    "%": 1.0,
-    "percent": 1.0,
-    "s": 1.0,
-    "m": 1.0,
-    "ft": FT,
-    "m/s": 1.0,
-    "ft/s": FT,
-    "kt": KT,
-    "m/s2": 1.0,
-    "m/s^2": 1.0,
-    "ft/s2": FT,
-    "ft/s^2": FT,
-    "rad": 1.0,
-    "deg": DEG,
-    "rad/s": 1.0,
-    "deg/s": DEG,
-    "rad/s2": 1.0,
-    "deg/s2": DEG,
-    "N": 1.0,
-    "N.m": 1.0,
-    "W": 1.0,
-    "kg": 1.0,
-    "kg.m2": 1.0,
-}
+#: SI base units in the order of the attributes of FMI 2.0's ``<BaseUnit>``.
+BASE_UNITS = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
 
-# Units that may be converted into each other (same physical dimension).
-_DIMENSION = {
-    "1": "1", "%": "%", "percent": "%", "s": "s",
-    "m": "L", "ft": "L",
-    "m/s": "L/T", "ft/s": "L/T", "kt": "L/T",
-    "m/s2": "L/T2", "m/s^2": "L/T2", "ft/s2": "L/T2", "ft/s^2": "L/T2",
-    "rad": "A", "deg": "A",
-    "rad/s": "A/T", "deg/s": "A/T",
-    "rad/s2": "A/T2", "deg/s2": "A/T2",
-    "N": "F", "N.m": "M", "W": "P", "kg": "kg", "kg.m2": "I",
-}
+
+@dataclass(frozen=True)
+class Unit:
+    """A unit as SI base-unit exponents and a factor: SI value = ``factor`` * value.
+
+    This is FMI 2.0's ``<BaseUnit>`` (exponents per :data:`BASE_UNITS`, ``factor``), so the
+    one table :data:`UNITS` both converts values and writes the FMUs' unit definitions.
+    """
+
+    name: str
+    exponents: tuple[tuple[str, int], ...] = ()  #: (base unit, exponent), non-zero, in order
+    factor: float = 1.0
+
+    @classmethod
+    def of(cls, name: str, factor: float = 1.0, **exponents: int) -> "Unit":
+        return cls(name, tuple((b, int(exponents[b])) for b in BASE_UNITS
+                               if exponents.get(b)), float(factor))
+
+
+_U = Unit.of
+#: Every unit of this project. Percent of control travel is the dimensionless ratio 1/100
+#: (SI Brochure; FMI 2.0 <BaseUnit factor="0.01"/>), as both FMU tables already declared it:
+#: converting % to % is 1 and % to 1 is 0.01, not a dimension of its own.
+UNITS: dict[str, Unit] = {u.name: u for u in (
+    _U("1"), _U("%", 0.01), _U("percent", 0.01),
+    _U("s", s=1),
+    _U("m", m=1), _U("ft", FT, m=1), _U("m2", m=2), _U("m3", m=3),
+    _U("m/s", m=1, s=-1), _U("ft/s", FT, m=1, s=-1), _U("kt", KT, m=1, s=-1),
+    _U("m/s2", m=1, s=-2), _U("m/s^2", m=1, s=-2), _U("ft/s2", FT, m=1, s=-2),
+    _U("ft/s^2", FT, m=1, s=-2),
+    _U("rad", rad=1), _U("deg", DEG, rad=1), _U("1/rad", rad=-1),
+    _U("rad/s", rad=1, s=-1), _U("deg/s", DEG, rad=1, s=-1),
+    _U("rad/s2", rad=1, s=-2), _U("deg/s2", DEG, rad=1, s=-2),
+    _U("kg", kg=1), _U("kg.m2", kg=1, m=2), _U("kg/m3", kg=1, m=-3),
+    _U("N", kg=1, m=1, s=-2), _U("N.m", kg=1, m=2, s=-2),
+    _U("N.m/rad", kg=1, m=2, s=-2, rad=-1), _U("W", kg=1, m=2, s=-3),
+)}
+del _U
+
+#: Display units the FMUs declare for an SI unit (FMI ``<DisplayUnit>``), first one preferred.
+DISPLAY_UNITS = {"m": ("ft",), "m/s": ("ft/s", "kt"), "m/s2": ("ft/s2",), "rad": ("deg",),
+                 "rad/s": ("deg/s",), "rad/s2": ("deg/s2",)}
+#: SI unit of the time derivative of a state in the given SI unit.
+DERIVATIVE_UNIT = {"m": "m/s", "m/s": "m/s2", "rad": "rad/s", "rad/s": "rad/s2"}
+#: Analysis (the paper's) unit of an FMU's SI unit, for variables outside :data:`CHANNELS`.
+ANALYSIS_UNIT = {"m/s": "ft/s", "rad/s": "deg/s", "rad": "deg", "m/s2": "ft/s^2", "m": "ft",
+                 "%": "%"}
 
 
 def conversion_factor(from_unit: str, to_unit: str) -> float:
@@ -65,16 +76,22 @@ def conversion_factor(from_unit: str, to_unit: str) -> float:
     Raises ``ValueError`` naming both units when they are unknown or of different dimension.
     """
     for unit in (from_unit, to_unit):
-        if unit not in _TO_SI:
-            raise ValueError(f"unknown unit {unit!r}; known units: {sorted(_TO_SI)}")
-    if _DIMENSION[from_unit] != _DIMENSION[to_unit]:
+        if unit not in UNITS:
+            raise ValueError(f"unknown unit {unit!r}; known units: {sorted(UNITS)}")
+    a, b = UNITS[from_unit], UNITS[to_unit]
+    if a.exponents != b.exponents:
         raise ValueError(f"cannot convert {from_unit!r} to {to_unit!r}: different dimensions")
-    return _TO_SI[from_unit] / _TO_SI[to_unit]
+    return a.factor / b.factor
 
 
 def convert(value, from_unit: str, to_unit: str):
     """Convert ``value`` (scalar, array or xarray object) between two units."""
     return value * conversion_factor(from_unit, to_unit)
+
+
+def display_units(unit: str) -> tuple[tuple[str, float], ...]:
+    """FMI display units of ``unit``: ``(name, factor)`` with display value = factor * value."""
+    return tuple((d, conversion_factor(unit, d)) for d in DISPLAY_UNITS.get(unit, ()))
 
 
 @dataclass(frozen=True)

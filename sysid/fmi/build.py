@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import csv
 import hashlib
-import math
 import os
 import shutil
 import subprocess
@@ -27,14 +26,18 @@ import uuid
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from xml.sax.saxutils import escape, quoteattr
 
-from sysid.core.paths import cache_dir, fmu_sources_dir
+import sysid
 from sysid.core.errors import FMUError
+from sysid.core.paths import cache_dir, fmu_sources_dir
+from sysid.core.units import DERIVATIVE_UNIT, DISPLAY_UNITS, UNITS
 from sysid.core.util import atomic_path
+from sysid.fmi.description import (FmuDescription, ScalarVariable, UnitDefinition,
+                                   fmi2_model_description, variables_header)
 
-#: Bump when the generated files change shape, so that cached FMUs are rebuilt.
-GENERATOR_VERSION = "1"
+#: Bump when the generated files change shape, so that cached FMUs are rebuilt
+#: (2: one generator, sysid.fmi.description, for the truth and the exported FMUs).
+GENERATOR_VERSION = "2"
 
 #: Compiler flags (part of the cache key). -fno-math-errno lets sqrt compile to one
 #: instruction; hidden visibility exports only the FMI functions (FMI2_Export).
@@ -44,37 +47,6 @@ CFLAGS = ("-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-fno-math-errno")
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 
 KINDS = ("parameter", "input", "state", "output")
-_KIND_CODE = {"parameter": 0, "input": 1, "state": 2, "derivative": 3, "output": 4}
-
-#: Unit definitions: SI base-unit exponents (plus factor) and display units with the FMI
-#: factor (display value = factor * value).
-_FT = 0.3048
-UNITS: dict[str, tuple[dict, dict]] = {
-    "1": ({}, {}),
-    "%": ({"factor": "0.01"}, {}),
-    "s": ({"s": 1}, {}),
-    "m": ({"m": 1}, {"ft": 1 / _FT}),
-    "m/s": ({"m": 1, "s": -1}, {"ft/s": 1 / _FT, "kt": 3600 / 1852}),
-    "m/s2": ({"m": 1, "s": -2}, {"ft/s2": 1 / _FT}),
-    "rad": ({"rad": 1}, {"deg": 180 / math.pi}),
-    "rad/s": ({"rad": 1, "s": -1}, {"deg/s": 180 / math.pi}),
-    "rad/s2": ({"rad": 1, "s": -2}, {"deg/s2": 180 / math.pi}),
-    "1/rad": ({"rad": -1}, {}),
-    "kg": ({"kg": 1}, {}),
-    "kg.m2": ({"kg": 1, "m": 2}, {}),
-    "kg/m3": ({"kg": 1, "m": -3}, {}),
-    "m2": ({"m": 2}, {}),
-    "m3": ({"m": 3}, {}),
-    "N": ({"kg": 1, "m": 1, "s": -2}, {}),
-    "N.m": ({"kg": 1, "m": 2, "s": -2}, {}),
-    "N.m/rad": ({"kg": 1, "m": 2, "s": -2, "rad": -1}, {}),
-    "W": ({"kg": 1, "m": 2, "s": -3}, {}),
-}
-#: Unit of the time derivative of a state with the given unit (and its display unit).
-_DERIVATIVE_UNIT = {
-    "m": ("m/s", "ft/s"), "m/s": ("m/s2", "ft/s2"), "rad": ("rad/s", "deg/s"),
-    "rad/s": ("rad/s2", "deg/s2"),
-}
 
 
 @dataclass(frozen=True)
@@ -103,7 +75,7 @@ class Variable:
     @property
     def initial(self) -> str | None:
         return {"parameter": "exact", "input": None, "state": "exact",
-                "derivative": "calculated", "output": "calculated"}[self.kind]
+                "derivative": None, "output": "calculated"}[self.kind]
 
 
 @dataclass(frozen=True)
@@ -167,11 +139,11 @@ def read_model(folder: str | os.PathLike) -> ModelSources:
         if unit not in UNITS:
             raise FMUError(f"{where}: unit {unit!r} is not defined; known: {sorted(UNITS)}")
         display = row["display_unit"].strip()
-        if display and display not in UNITS[unit][1]:
+        if display and display not in DISPLAY_UNITS.get(unit, ()):
             raise FMUError(f"{where}: {display!r} is not a display unit of {unit!r}")
         if kind != "output" and _number(row["start"], where) is None:
             raise FMUError(f"{where}: {kind} {name} needs a start value")
-        if kind == "state" and unit not in _DERIVATIVE_UNIT:
+        if kind == "state" and unit not in DERIVATIVE_UNIT:
             raise FMUError(f"{where}: no derivative unit known for state unit {unit!r}")
 
     states = [r for r in rows if r["kind"].strip() == "state"]
@@ -188,10 +160,10 @@ def read_model(folder: str | os.PathLike) -> ModelSources:
     for k, row in enumerate(states):
         variables.append(make(row, k))
     for k, state in enumerate(list(variables)):
-        unit, display = _DERIVATIVE_UNIT[state.unit]
+        unit = DERIVATIVE_UNIT[state.unit]
         variables.append(Variable(
             name=f"der({state.name})", kind="derivative", unit=unit,
-            display_unit=display if state.display_unit else "", start=None, nominal=None,
+            display_unit=DISPLAY_UNITS[unit][0] if state.display_unit else "", start=None, nominal=None,
             description=f"time derivative of {state.name}", vr=len(states) + k,
             state_of=state.name))
     for k, row in enumerate(others):
@@ -212,133 +184,35 @@ def _c_name(name: str) -> str:
     return name.replace("der(", "der_").replace(")", "")
 
 
-def _c_double(value: float | None) -> str:
-    if value is None:
-        return "NAN"
-    return repr(float(value))
+def describe(model: ModelSources, guid: str, version: str = sysid.__version__
+             ) -> FmuDescription:
+    """The FMU of a model folder in the data model of :mod:`sysid.fmi.description`."""
+    variables = tuple(
+        ScalarVariable(name=v.name, c_name=_c_name(v.name), value_reference=v.vr, kind=v.kind,
+                       causality=v.causality, variability=v.variability, initial=v.initial,
+                       description=v.description, unit=v.unit,
+                       display_unit=v.display_unit or None, start=v.start,
+                       nominal=v.nominal if v.kind == "state" else None,
+                       derivative_of=v.state_of)
+        for v in model.variables)
+    experiment = tuple((key, float(model.experiment[key])) for key in ("start", "stop", "step")
+                       if key in model.experiment)
+    return FmuDescription(
+        model_name=model.name, identifier=model.identifier, guid=guid,
+        description=model.description, generation_tool=f"sysid {version}",
+        source_files=("fmi2_functions.c", *model.sources), variables=variables,
+        units=tuple(UnitDefinition.of(u) for u in sorted({v.unit for v in model.variables})),
+        experiment=experiment)
 
 
 def generate_header(model: ModelSources, guid: str) -> str:
     """The C header ``model_variables.h``: value references and variable tables."""
-    n_states = len(model.states)
-    lines = [
-        "/* Generated by sysid.truth from variables.csv and model.toml; do not edit. */",
-        "#ifndef MODEL_VARIABLES_H",
-        "#define MODEL_VARIABLES_H",
-        "#include <math.h>",
-        "",
-        f"#define MODEL_IDENTIFIER {model.identifier}",
-        f'#define MODEL_GUID "{guid}"',
-        f"#define N_REALS {len(model.variables)}",
-        f"#define N_STATES {n_states}",
-        "#define VR_STATE0 0",
-        f"#define VR_DERIV0 {n_states}",
-        "",
-    ]
-    for var in model.variables:
-        lines.append(f"#define VR_{_c_name(var.name)} {var.vr}")
-    lines += ["", "static const double MODEL_START[N_REALS] = {"]
-    lines += [f"    {_c_double(v.start)}, /* {v.name} */" for v in model.variables]
-    lines += ["};", "", "static const double MODEL_STATE_NOMINAL[N_STATES] = {"]
-    lines += [f"    {_c_double(v.nominal or 1.0)}, /* {v.name} */" for v in model.states]
-    lines += ["};", "", "static const unsigned char MODEL_VAR_KIND[N_REALS] = {"]
-    lines += [f"    {_KIND_CODE[v.kind]}, /* {v.name} */" for v in model.variables]
-    lines += ["};", "", "static const char *const MODEL_VAR_NAMES[N_REALS] = {"]
-    lines += [f'    "{v.name}",' for v in model.variables]
-    lines += ["};", "", "#endif", ""]
-    return "\n".join(lines)
-
-
-def _attr(name: str, value) -> str:
-    return f" {name}={quoteattr(str(value))}"
-
-
-def _fmt(value: float) -> str:
-    return repr(float(value))
+    return variables_header(describe(model, guid))
 
 
 def generate_model_description(model: ModelSources, guid: str, version: str) -> str:
     """The ``modelDescription.xml`` (FMI 2.0, model exchange and co-simulation)."""
-    c_files = "".join(f'      <File name="{name}"/>\n'
-                      for name in ("fmi2_functions.c", *model.sources))
-    common_caps = (' canGetAndSetFMUstate="true" canSerializeFMUstate="true"'
-                   ' canNotUseMemoryManagementFunctions="true"'
-                   ' providesDirectionalDerivative="false"')
-    used = {v.unit for v in model.variables}
-    out = [
-        '<?xml version="1.0" encoding="UTF-8"?>',
-        '<fmiModelDescription fmiVersion="2.0"'
-        + _attr("modelName", model.name) + _attr("guid", guid)
-        + _attr("description", model.description)
-        + _attr("generationTool", f"sysid {version}")
-        + f' numberOfEventIndicators="0">',
-        f'  <ModelExchange modelIdentifier="{model.identifier}"'
-        f' completedIntegratorStepNotNeeded="true"{common_caps}>',
-        "    <SourceFiles>", c_files.rstrip("\n"), "    </SourceFiles>",
-        "  </ModelExchange>",
-        f'  <CoSimulation modelIdentifier="{model.identifier}"'
-        f' canHandleVariableCommunicationStepSize="true"{common_caps}>',
-        "    <SourceFiles>", c_files.rstrip("\n"), "    </SourceFiles>",
-        "  </CoSimulation>",
-        "  <UnitDefinitions>",
-    ]
-    for unit in sorted(used):
-        base, displays = UNITS[unit]
-        out.append(f"    <Unit{_attr('name', unit)}>")
-        if base:
-            attrs = "".join(_attr(k, v) for k, v in base.items())
-            out.append(f"      <BaseUnit{attrs}/>")
-        for dname, factor in displays.items():
-            out.append(f"      <DisplayUnit{_attr('name', dname)}{_attr('factor', _fmt(factor))}/>")
-        out.append("    </Unit>")
-    out.append("  </UnitDefinitions>")
-    exp = model.experiment
-    if exp:
-        out.append("  <DefaultExperiment"
-                   + "".join(_attr(k, _fmt(exp[key])) for k, key in
-                             (("startTime", "start"), ("stopTime", "stop"), ("stepSize", "step"))
-                             if key in exp) + "/>")
-    out.append("  <ModelVariables>")
-    index = {v.name: k + 1 for k, v in enumerate(model.variables)}
-    for var in model.variables:
-        attrs = (_attr("name", var.name) + _attr("valueReference", var.vr)
-                 + _attr("description", var.description) + _attr("causality", var.causality)
-                 + _attr("variability", var.variability))
-        if var.initial and var.kind != "derivative":
-            attrs += _attr("initial", var.initial)
-        real = _attr("unit", var.unit)
-        if var.display_unit:
-            real += _attr("displayUnit", var.display_unit)
-        if var.state_of:
-            real += _attr("derivative", index[var.state_of])
-        if var.start is not None:
-            real += _attr("start", _fmt(var.start))
-        if var.kind == "state" and var.nominal is not None:
-            real += _attr("nominal", _fmt(var.nominal))
-        out.append(f"    <ScalarVariable{attrs}>")
-        out.append(f"      <Real{real}/>")
-        out.append("    </ScalarVariable>")
-    out.append("  </ModelVariables>")
-    outputs = [index[v.name] for v in model.variables if v.causality == "output"]
-    derivatives = [index[v.name] for v in model.variables if v.kind == "derivative"]
-    initial = sorted(index[v.name] for v in model.variables
-                     if v.kind in ("output", "derivative"))
-    out += model_structure(outputs, derivatives, initial)
-    out.append("</fmiModelDescription>")
-    return "\n".join(out) + "\n"
-
-
-def model_structure(outputs, derivatives, initial_unknowns) -> list[str]:
-    """The ``<ModelStructure>`` lines of an FMI 2.0 modelDescription.xml (indices are the
-    1-based positions of the variables in ``<ModelVariables>``)."""
-    out = ["  <ModelStructure>"]
-    for tag, items in (("Outputs", outputs), ("Derivatives", derivatives),
-                       ("InitialUnknowns", initial_unknowns)):
-        out.append(f"    <{tag}>")
-        out += [f'      <Unknown index="{i}"/>' for i in items]
-        out.append(f"    </{tag}>")
-    out.append("  </ModelStructure>")
-    return out
+    return fmi2_model_description(describe(model, guid, version))
 
 
 # ------------------------------------------------------------------------------------------
@@ -464,8 +338,6 @@ def build_model_fmu(model_folder: str | os.PathLike, *, force: bool = False,
     ``common_folder`` defaults to ``fmus/common``. Returns the path of the cached ``.fmu``.
     Raises :class:`~sysid.core.errors.FMUError` naming the problem (no compiler, compile error...).
     """
-    from sysid import __version__
-
     model = read_model(model_folder)
     common = Path(common_folder) if common_folder else fmu_sources_dir() / "common"
     target = fmu_cache_path(model, common)
@@ -476,7 +348,7 @@ def build_model_fmu(model_folder: str | os.PathLike, *, force: bool = False,
     with tempfile.TemporaryDirectory(prefix=f"sysid-build-{model.identifier}-") as tmp:
         workdir = Path(tmp)
         library, src = _compile(model, common, workdir)
-        package_fmu(target, generate_model_description(model, guid, __version__), library,
+        package_fmu(target, generate_model_description(model, guid, sysid.__version__), library,
                     model.identifier, src)
     return target
 

@@ -32,20 +32,24 @@ import hashlib
 import math
 import re
 import shutil
-import sys
 import tempfile
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
-from xml.sax.saxutils import quoteattr
 
 import numpy as np
 import xarray as xr
 
-from sysid.core.paths import fmu_sources_dir
+import sysid
 from sysid.core.errors import FMUError, InputDataError, SysidError
-from sysid.core.units import CHANNELS, DEG, FT, conversion_factor
+from sysid.core.paths import fmu_sources_dir
+from sysid.core.units import CHANNELS, DERIVATIVE_UNIT, UNITS, Unit, conversion_factor
 from sysid.core.util import Progress
+from sysid.fmi.build import (FMI_HEADERS, compile_shared_library, fmi_header_dir, package_fmu,
+                             platform_folder)
+from sysid.fmi.description import (FmuDescription, ScalarVariable, UnitDefinition, c_string,
+                                   fmi2_model_description, variables_header)
+from sysid.models import DELAY_BOUNDS
 
 __all__ = ["export_fmu", "ExportSpec", "export_spec", "DEFAULT_STEP", "DEFAULT_PADE_ORDER",
            "ME_DELAY_MODES"]
@@ -62,14 +66,6 @@ TEMPLATE_FILES = ("model.c", "model.h")
 COMMON_FILES = ("fmi2_functions.c", "fmu_model.h")
 _MATRIX_CODE = {"A": 0, "B": 1, "C": 2, "D": 3, "delay": 4}
 
-#: Analysis units as SI base-unit exponents and factor (SI value = factor * value); the
-#: percent of travel is the dimensionless unit with factor 0.01, as in the truth FMU.
-_ANALYSIS_BASE = {
-    "%": ({}, 0.01), "ft/s": ({"m": 1, "s": -1}, FT), "deg/s": ({"rad": 1, "s": -1}, DEG),
-    "deg": ({"rad": 1}, DEG), "ft/s^2": ({"m": 1, "s": -2}, FT), "ft": ({"m": 1}, FT),
-    "s": ({"s": 1}, 1.0), "1": ({}, 1.0),
-}
-_BASE_ORDER = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
 
 
 # ------------------------------------------------------------------------------------------
@@ -92,21 +88,6 @@ def fmi_name(name: str) -> str:
     carriage return, line feed and tab, which become spaces). XML escaping happens when the
     description is written."""
     return re.sub(r"[\r\n\t]", " ", str(name))
-
-
-def _c_string(text: str) -> str:
-    """A C string literal holding ``text`` (UTF-8; quotes, backslashes and non-printable
-    bytes escaped in octal)."""
-    out = []
-    for byte in text.encode("utf-8"):
-        ch = chr(byte)
-        if ch in '"\\?':
-            out.append("\\" + ch)
-        elif 32 <= byte < 127:
-            out.append(ch)
-        else:
-            out.append(f"\\{byte:03o}")
-    return '"' + "".join(out) + '"'
 
 
 # ------------------------------------------------------------------------------------------
@@ -311,32 +292,13 @@ def _analysis_unit(name: str) -> str | None:
 # units
 
 
-@dataclass(frozen=True)
-class UnitDef:
-    """An FMI unit: SI base-unit exponents, factor, display units (name -> factor)."""
-
-    name: str
-    exponents: tuple
-    factor: float = 1.0
-    displays: tuple = ()
-
-
-def _si_unit_def(unit: str) -> UnitDef:
-    """FMI definition of an SI unit of the truth FMU (same table as sysid.fmi.build)."""
-    from sysid.fmi.build import UNITS
-
-    base, displays = UNITS[unit]
-    factor = float(base.get("factor", 1.0))
-    exps = tuple((k, v) for k, v in base.items() if k != "factor")
-    return UnitDef(unit, exps, factor, tuple(displays.items()))
-
-
-def _ratio_unit(num: str | None, den: str | None, per_second: bool) -> UnitDef | None:
+def _ratio_unit(num: str | None, den: str | None, per_second: bool) -> UnitDefinition | None:
     """Unit of ``num / den`` (times 1/s for a state derivative row) in analysis units, or None
     when a component is unknown (non-channel states carry no unit)."""
-    if num is None or den is None or num not in _ANALYSIS_BASE or den not in _ANALYSIS_BASE:
+    if num is None or den is None or num not in UNITS or den not in UNITS:
         return None
-    (en, fn), (ed, fd) = _ANALYSIS_BASE[num], _ANALYSIS_BASE[den]
+    en, fn = dict(UNITS[num].exponents), UNITS[num].factor
+    ed, fd = dict(UNITS[den].exponents), UNITS[den].factor
     exps = {k: en.get(k, 0) - ed.get(k, 0) for k in set(en) | set(ed)}
     if per_second:
         exps["s"] = exps.get("s", 0) - 1
@@ -352,11 +314,11 @@ def _ratio_unit(num: str | None, den: str | None, per_second: bool) -> UnitDef |
         name = num_name
     else:
         name = f"{num_name}/{den}" if den == "%" else f"({num_name})/({den})"
-    return UnitDef(name, tuple(sorted(exps.items(), key=lambda kv: _BASE_ORDER.index(kv[0]))),
-                   factor)
+    return UnitDefinition(name, Unit.of(name, factor, **exps).exponents, factor)
 
 
-def _parameter_unit(spec: ExportSpec, matrix: str, row: int, col: int) -> UnitDef | None:
+def _parameter_unit(spec: ExportSpec, matrix: str, row: int, col: int
+                    ) -> UnitDefinition | None:
     if matrix == "delay":
         return _ratio_unit("s", "1", False)
     st, inp, out = spec.states, spec.inputs, spec.outputs
@@ -369,9 +331,6 @@ def _parameter_unit(spec: ExportSpec, matrix: str, row: int, col: int) -> UnitDe
     return _ratio_unit(_analysis_unit(out[row]), _analysis_unit(inp[col]), False)
 
 
-_DERIVATIVE_SI = {"m/s": "m/s2", "rad/s": "rad/s2", "rad": "rad/s", "m": "m/s"}
-
-
 # ------------------------------------------------------------------------------------------
 # variables and generated files
 
@@ -382,17 +341,17 @@ def fmu_variables(spec: ExportSpec, pade_order: int) -> tuple[list[FmuVariable],
     Layout (what model.c expects through linear_dims.h): states ``x_*`` then the Pade states,
     their derivatives, inputs, outputs, ``trim_<input>``, ``trim_<output>``, the parameters.
     """
-    units: dict[str, UnitDef] = {}
+    units: dict[str, UnitDefinition] = {}
 
     def si(channel: str, derivative: bool = False):
         if channel not in CHANNELS:
             return None, None
         unit = CHANNELS[channel].si_unit
         if derivative:
-            unit = _DERIVATIVE_SI.get(unit)
+            unit = DERIVATIVE_UNIT.get(unit)
             if unit is None:
                 return None, None
-        ud = _si_unit_def(unit)
+        ud = UnitDefinition.of(unit)
         units[unit] = ud
         display = ud.displays[0][0] if ud.displays and channel not in ("lon", "lat", "col",
                                                                        "ped") else None
@@ -413,8 +372,8 @@ def fmu_variables(spec: ExportSpec, pade_order: int) -> tuple[list[FmuVariable],
     for v in states:
         unit, disp = (None, None)
         if v.c_name.startswith("x_") and v.unit:
-            unit = _DERIVATIVE_SI[v.unit]
-            ud = _si_unit_def(unit)
+            unit = DERIVATIVE_UNIT[v.unit]
+            ud = UnitDefinition.of(unit)
             units[unit] = ud
             disp = ud.displays[0][0] if v.display_unit and ud.displays else None
         derivs.append(FmuVariable(f"der({v.name})", f"der_{v.c_name}", "derivative", unit, disp,
@@ -525,7 +484,7 @@ def generate_tables(spec: ExportSpec) -> str:
            _c_array("PAR_COL", "int", [p[3] for p in spec.parameters]),
            "static const char *const PAR_NAMES[%d] = {\n    %s\n};\n" % (
                max(1, len(spec.parameters)),
-               ",\n    ".join([_c_string(p[0]) for p in spec.parameters] or ['""'])),
+               ",\n    ".join([c_string(p[0]) for p in spec.parameters] or ['""'])),
            "/* delay groups: input and parameter of each; delay group of each B entry */",
            _c_array("GROUP_INPUT", "int", [g[0] for g in groups]),
            _c_array("GROUP_PAR", "int", [g[1] for g in groups]),
@@ -538,89 +497,47 @@ def _rows(matrix: np.ndarray) -> str:
     return ", ".join("{" + ", ".join(repr(float(v)) for v in row) + "}" for row in matrix)
 
 
-def _attr(name: str, value) -> str:
-    return f" {name}={quoteattr(str(value))}"
+#: FMI causality, variability and initial of each kind of variable of an exported model.
+_POLICY = {"state": ("local", "continuous", "exact"),
+           "derivative": ("local", "continuous", None),
+           "input": ("input", "continuous", None),
+           "output": ("output", "continuous", "calculated"),
+           "parameter": ("parameter", "fixed", "exact")}
 
 
-def generate_model_description(spec: ExportSpec, variables: list[FmuVariable], units: dict,
-                               guid: str, identifier: str, step_size: float,
-                               source_files: list[str], me_delay: str = "buffer") -> str:
-    """``modelDescription.xml`` (FMI 2.0, model exchange and co-simulation, source files).
+def describe(spec: ExportSpec, variables: list[FmuVariable], units: dict, guid: str,
+             identifier: str, step_size: float, source_files: list[str],
+             me_delay: str = "buffer") -> FmuDescription:
+    """The exported FMU in the data model of :mod:`sysid.fmi.description`.
 
     With delays held in an input history (``me_delay="buffer"``) the model-exchange FMU needs
     ``fmi2CompletedIntegratorStep``: it raises a step event where an input update makes a
     delayed input jump, so that the integrator restarts there.
     """
-    from sysid.fmi.build import model_structure
-
-    from sysid import __version__
-
-    files = "\n".join(f'      <File name="{f}"/>' for f in source_files)
-    not_needed = "false" if (me_delay == "buffer" and spec.groups) else "true"
-    caps = (' canGetAndSetFMUstate="true" canSerializeFMUstate="true"'
-            ' canNotUseMemoryManagementFunctions="true" providesDirectionalDerivative="false"')
     desc = (f"Linear model {spec.attrs.get('method', '')} ({spec.attrs.get('structure', '')}) "
             f"exported by sysid: x' = A x + B~ u(t - tau), y = trim + C x + D u").strip()
-    out = ['<?xml version="1.0" encoding="UTF-8"?>',
-           '<fmiModelDescription fmiVersion="2.0"' + _attr("modelName", spec.name)
-           + _attr("guid", guid) + _attr("description", desc)
-           + _attr("generationTool", f"sysid {__version__}")
-           + ' variableNamingConvention="flat" numberOfEventIndicators="0">',
-           f'  <ModelExchange modelIdentifier="{identifier}"'
-           f' completedIntegratorStepNotNeeded="{not_needed}"{caps}>',
-           "    <SourceFiles>", files, "    </SourceFiles>", "  </ModelExchange>",
-           f'  <CoSimulation modelIdentifier="{identifier}"'
-           f' canHandleVariableCommunicationStepSize="true"{caps}>',
-           "    <SourceFiles>", files, "    </SourceFiles>", "  </CoSimulation>"]
-    if units:
-        out.append("  <UnitDefinitions>")
-        for name in sorted(units):
-            ud = units[name]
-            out.append(f"    <Unit{_attr('name', ud.name)}>")
-            attrs = "".join(_attr(k, v) for k, v in ud.exponents)
-            if ud.factor != 1.0:
-                attrs += _attr("factor", repr(ud.factor))
-            if attrs:
-                out.append(f"      <BaseUnit{attrs}/>")
-            for dname, factor in ud.displays:
-                out.append(f"      <DisplayUnit{_attr('name', dname)}"
-                           f"{_attr('factor', repr(float(factor)))}/>")
-            out.append("    </Unit>")
-        out.append("  </UnitDefinitions>")
-    out.append(f'  <DefaultExperiment startTime="0.0" stopTime="10.0"'
-               f' stepSize="{float(step_size)!r}"/>')
-    out.append("  <ModelVariables>")
-    index = {v.name: k + 1 for k, v in enumerate(variables)}
-    policy = {"state": ("local", "continuous", "exact"),
-              "derivative": ("local", "continuous", None),
-              "input": ("input", "continuous", None),
-              "output": ("output", "continuous", "calculated"),
-              "parameter": ("parameter", "fixed", "exact")}
+    scalars = []
     for v in variables:
-        causality, variability, initial = policy[v.kind]
-        attrs = (_attr("name", v.name) + _attr("valueReference", v.vr)
-                 + _attr("description", v.description) + _attr("causality", causality)
-                 + _attr("variability", variability))
-        if initial:
-            attrs += _attr("initial", initial)
-        real = ""
-        if v.unit:
-            real += _attr("unit", v.unit)
-        if v.display_unit:
-            real += _attr("displayUnit", v.display_unit)
-        if v.state_of:
-            real += _attr("derivative", index[v.state_of])
-        if v.start is not None:
-            real += _attr("start", repr(float(v.start)))
-        out.append(f"    <ScalarVariable{attrs}>")
-        out.append(f"      <Real{real}/>")
-        out.append("    </ScalarVariable>")
-    out.append("  </ModelVariables>")
-    outputs = [index[v.name] for v in variables if v.kind == "output"]
-    derivs = [index[v.name] for v in variables if v.kind == "derivative"]
-    out += model_structure(outputs, derivs, sorted(outputs + derivs))
-    out.append("</fmiModelDescription>")
-    return "\n".join(out) + "\n"
+        causality, variability, initial = _POLICY[v.kind]
+        scalars.append(ScalarVariable(
+            name=v.name, c_name=v.c_name, value_reference=v.vr, kind=v.kind,
+            causality=causality, variability=variability, initial=initial,
+            description=v.description, unit=v.unit, display_unit=v.display_unit,
+            start=v.start, derivative_of=v.state_of))
+    return FmuDescription(
+        model_name=spec.name, identifier=identifier, guid=guid, description=desc,
+        generation_tool=f"sysid {sysid.__version__}", source_files=tuple(source_files),
+        variables=tuple(scalars), units=tuple(units[name] for name in sorted(units)),
+        experiment=(("start", 0.0), ("stop", 10.0), ("step", float(step_size))),
+        completed_integrator_step_not_needed=not (me_delay == "buffer" and spec.groups))
+
+
+def generate_model_description(spec: ExportSpec, variables: list[FmuVariable], units: dict,
+                               guid: str, identifier: str, step_size: float,
+                               source_files: list[str], me_delay: str = "buffer") -> str:
+    """``modelDescription.xml`` (FMI 2.0, model exchange and co-simulation, source files)."""
+    return fmi2_model_description(describe(spec, variables, units, guid, identifier, step_size,
+                                           source_files, me_delay))
 
 
 def generate_build_description(identifier: str, source_files: list[str]) -> str:
@@ -636,22 +553,6 @@ def generate_build_description(identifier: str, source_files: list[str]) -> str:
             "</fmiBuildDescription>\n")
 
 
-def _header_model(variables: list[FmuVariable], identifier: str):
-    """The variables as sysid.fmi.build objects, so that the boilerplate's
-    ``model_variables.h`` is generated by the same function as for the truth FMU."""
-    from sysid.fmi.build import ModelSources, Variable
-
-    def conv(v: FmuVariable):
-        return Variable(name=v.c_name, kind=v.kind, unit=v.unit or "1",
-                        display_unit=v.display_unit or "", start=v.start,
-                        nominal=1.0 if v.kind == "state" else None, description=v.description,
-                        vr=v.vr, state_of=None)
-
-    return ModelSources(folder=Path("."), identifier=identifier, name=identifier,
-                        description="", sources=("model.c",), headers=("model.h",),
-                        experiment={}, variables=tuple(conv(v) for v in variables))
-
-
 # ------------------------------------------------------------------------------------------
 # compiling and packaging
 
@@ -660,8 +561,6 @@ def compile_library(src: Path, identifier: str, out_dir: Path) -> Path:
     """Compile ``src/*.c`` into the FMU's shared library with the machine's C compiler
     (the same compiler and flags as the truth FMU). Raises FMUError with the compiler's
     first error line."""
-    from sysid.fmi.build import compile_shared_library, platform_folder
-
     _, ext = platform_folder()
     return compile_shared_library(sorted(src.glob("*.c")), src, out_dir / f"{identifier}{ext}",
                                   what=f"the exported FMU {identifier}")
@@ -671,8 +570,6 @@ def _default_history(spec: ExportSpec, step_size: float) -> int:
     """History samples: the largest delay the FMU may be tuned to (2x the largest identified
     delay, at least 0.3 s, the physical bound of sysid.models.DELAY_BOUNDS) at a quarter of
     the default step, at least 256."""
-    from sysid.models import DELAY_BOUNDS
-
     taus = [p[4] for p in spec.parameters if p[1] == "delay"]
     horizon = max(DELAY_BOUNDS[1], 2.0 * max(taus, default=0.0))
     return int(max(256, math.ceil(4.0 * horizon / step_size) + 2))
@@ -761,14 +658,12 @@ def export_fmu(model_ds: xr.Dataset, path, *, fmi_version: int = 2,
             digest.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
         digest.update(spec.name.encode())
         guid = "{" + str(uuid.UUID(hex=digest.hexdigest()[:32])) + "}"
-        from sysid.fmi.build import generate_header, package_fmu
-
-        (src / "model_variables.h").write_text(
-            generate_header(_header_model(variables, identifier), guid))
+        fmu = describe(spec, variables, units, guid, identifier, step_size, source_files,
+                       me_delay)
+        (src / "model_variables.h").write_text(variables_header(fmu))
         (src / "buildDescription.xml").write_text(
             generate_build_description(identifier, source_files))
-        description = generate_model_description(spec, variables, units, guid, identifier,
-                                                 step_size, source_files, me_delay)
+        description = fmi2_model_description(fmu)
         library = compile_library(src, identifier, work)
         package_fmu(path, description, library, identifier, src)
     return path
@@ -777,8 +672,6 @@ def export_fmu(model_ds: xr.Dataset, path, *, fmi_version: int = 2,
 def _write_sources(src: Path, spec: ExportSpec, variables, pade_order: int,
                    history: int, me_delay: str) -> None:
     """Copy the template, the shared boilerplate and the FMI headers; write the tables."""
-    from sysid.fmi.build import FMI_HEADERS, fmi_header_dir
-
     root = fmu_sources_dir()
     for folder, names in ((root / "common", COMMON_FILES), (root / "linear", TEMPLATE_FILES)):
         for name in names:

@@ -32,14 +32,11 @@ import xarray as xr
 from sysid.fmi.runtime import DerivativeFunction, FMUModel, load_fmu
 from sysid.truth.trim import NAVIGATION, TrimResult
 from sysid.core.kinematics import FORCE_LETTER, derivative_name, rigid_body_terms
-from sysid.core.units import CHANNELS, CONTROLS, STATES_6DOF, conversion_factor
+from sysid.core.units import (ANALYSIS_UNIT, CHANNELS, CONTROLS, STATES_6DOF,
+                              conversion_factor)
 
 #: Default relative finite-difference step (times the state's nominal value).
 DEFAULT_STEP = 1e-5
-
-#: Analysis unit of a declared FMU unit for variables outside sysid.core.units.CHANNELS.
-ANALYSIS_UNIT = {"m/s": "ft/s", "rad/s": "deg/s", "rad": "deg", "m/s2": "ft/s^2", "m": "ft",
-                 "%": "%"}
 
 
 def analysis_unit(model: FMUModel, name: str) -> str:

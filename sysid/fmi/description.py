@@ -1,0 +1,243 @@
+"""One generator of ``modelDescription.xml`` and of the C variable header, for every FMU.
+
+The truth helicopter (:mod:`sysid.fmi.build`) and the exported linear models
+(:mod:`sysid.fmi.export`) describe their FMU with the same data model, :class:`FmuDescription`
+(variables with causality, variability, initial, unit and start; unit definitions from
+:data:`sysid.core.units.UNITS`; the model structure follows from the variables), and this
+module writes it: :func:`fmi2_model_description` (FMI 2.0 XML) and :func:`variables_header`
+(``model_variables.h`` for the shared boilerplate ``fmus/common``). The data model holds no
+XML text, so an FMI 3.0 writer can be added beside the FMI 2.0 one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from xml.sax.saxutils import quoteattr
+
+from sysid.core.units import UNITS, display_units
+
+__all__ = ["UnitDefinition", "ScalarVariable", "FmuDescription", "KIND_CODE",
+           "fmi2_model_description", "variables_header", "c_string"]
+
+#: Role of a variable in the boilerplate's value table (``MODEL_VAR_KIND`` in the header).
+KIND_CODE = {"parameter": 0, "input": 1, "state": 2, "derivative": 3, "output": 4}
+
+
+@dataclass(frozen=True)
+class UnitDefinition:
+    """An FMI unit: SI base-unit exponents, factor (SI value = factor * value), display units
+    ``(name, factor)`` with display value = factor * value."""
+
+    name: str
+    exponents: tuple[tuple[str, int], ...] = ()
+    factor: float = 1.0
+    displays: tuple[tuple[str, float], ...] = ()
+
+    @classmethod
+    def of(cls, name: str) -> "UnitDefinition":
+        """The definition of a unit of :data:`sysid.core.units.UNITS`, with its display units."""
+        unit = UNITS[name]
+        return cls(name, unit.exponents, unit.factor, display_units(name))
+
+
+@dataclass(frozen=True)
+class ScalarVariable:
+    """One Real variable of an FMU.
+
+    ``kind`` is its role in the C boilerplate (parameter, input, state, derivative, output);
+    ``causality``, ``variability`` and ``initial`` are what the FMU declares (the truth FMU
+    makes its states outputs, the exported models keep them local). ``derivative_of`` names
+    the state a derivative belongs to.
+    """
+
+    name: str
+    c_name: str
+    value_reference: int
+    kind: str
+    causality: str
+    variability: str
+    initial: str | None = None
+    description: str = ""
+    unit: str | None = None
+    display_unit: str | None = None
+    start: float | None = None
+    nominal: float | None = None
+    derivative_of: str | None = None
+
+
+@dataclass(frozen=True)
+class FmuDescription:
+    """Everything an FMU's model description says, independent of the FMI version's XML."""
+
+    model_name: str
+    identifier: str
+    guid: str
+    description: str
+    generation_tool: str
+    source_files: tuple[str, ...]
+    variables: tuple[ScalarVariable, ...]
+    units: tuple[UnitDefinition, ...] = ()
+    #: DefaultExperiment: any of ``start``, ``stop``, ``step`` (s)
+    experiment: tuple[tuple[str, float], ...] = ()
+    #: False when the model-exchange FMU needs fmi2CompletedIntegratorStep (step events)
+    completed_integrator_step_not_needed: bool = True
+
+    def index(self) -> dict[str, int]:
+        """1-based position of each variable (FMI 2.0 ``<ModelVariables>`` order)."""
+        return {v.name: k + 1 for k, v in enumerate(self.variables)}
+
+    def outputs(self) -> list[int]:
+        index = self.index()
+        return [index[v.name] for v in self.variables if v.causality == "output"]
+
+    def derivatives(self) -> list[int]:
+        index = self.index()
+        return [index[v.name] for v in self.variables if v.derivative_of is not None]
+
+    def initial_unknowns(self) -> list[int]:
+        """Outputs computed at initialisation (initial not ``exact``) and the derivatives."""
+        index = self.index()
+        return sorted(index[v.name] for v in self.variables
+                      if v.derivative_of is not None
+                      or (v.causality == "output" and v.initial != "exact"))
+
+
+# ------------------------------------------------------------------------------------------
+# FMI 2.0
+
+
+def _attr(name: str, value) -> str:
+    return f" {name}={quoteattr(str(value))}"
+
+
+def _real(value: float) -> str:
+    return repr(float(value))
+
+
+#: Capability flags both interfaces declare (the boilerplate implements them).
+_CAPABILITIES = (' canGetAndSetFMUstate="true" canSerializeFMUstate="true"'
+                 ' canNotUseMemoryManagementFunctions="true"'
+                 ' providesDirectionalDerivative="false"')
+_EXPERIMENT = (("startTime", "start"), ("stopTime", "stop"), ("stepSize", "step"))
+
+
+def fmi2_model_description(desc: FmuDescription) -> str:
+    """``modelDescription.xml`` (FMI 2.0, model exchange and co-simulation, source files)."""
+    files = "\n".join(f"      <File{_attr('name', f)}/>" for f in desc.source_files)
+    not_needed = "true" if desc.completed_integrator_step_not_needed else "false"
+    out = ['<?xml version="1.0" encoding="UTF-8"?>',
+           '<fmiModelDescription fmiVersion="2.0"' + _attr("modelName", desc.model_name)
+           + _attr("guid", desc.guid) + _attr("description", desc.description)
+           + _attr("generationTool", desc.generation_tool)
+           + ' variableNamingConvention="flat" numberOfEventIndicators="0">',
+           f"  <ModelExchange{_attr('modelIdentifier', desc.identifier)}"
+           f' completedIntegratorStepNotNeeded="{not_needed}"{_CAPABILITIES}>',
+           "    <SourceFiles>", files, "    </SourceFiles>", "  </ModelExchange>",
+           f"  <CoSimulation{_attr('modelIdentifier', desc.identifier)}"
+           f' canHandleVariableCommunicationStepSize="true"{_CAPABILITIES}>',
+           "    <SourceFiles>", files, "    </SourceFiles>", "  </CoSimulation>"]
+    if desc.units:
+        out.append("  <UnitDefinitions>")
+        for unit in sorted(desc.units, key=lambda u: u.name):
+            out.append(f"    <Unit{_attr('name', unit.name)}>")
+            base = "".join(_attr(k, v) for k, v in unit.exponents)
+            if unit.factor != 1.0:
+                base += _attr("factor", _real(unit.factor))
+            if base:
+                out.append(f"      <BaseUnit{base}/>")
+            for name, factor in unit.displays:
+                out.append(f"      <DisplayUnit{_attr('name', name)}"
+                           f"{_attr('factor', _real(factor))}/>")
+            out.append("    </Unit>")
+        out.append("  </UnitDefinitions>")
+    experiment = dict(desc.experiment)
+    if experiment:
+        out.append("  <DefaultExperiment" + "".join(
+            _attr(attr, _real(experiment[key])) for attr, key in _EXPERIMENT
+            if key in experiment) + "/>")
+    out.append("  <ModelVariables>")
+    index = desc.index()
+    for v in desc.variables:
+        attrs = (_attr("name", v.name) + _attr("valueReference", v.value_reference)
+                 + _attr("description", v.description) + _attr("causality", v.causality)
+                 + _attr("variability", v.variability))
+        if v.initial:
+            attrs += _attr("initial", v.initial)
+        real = ""
+        if v.unit:
+            real += _attr("unit", v.unit)
+        if v.display_unit:
+            real += _attr("displayUnit", v.display_unit)
+        if v.derivative_of:
+            real += _attr("derivative", index[v.derivative_of])
+        if v.start is not None:
+            real += _attr("start", _real(v.start))
+        if v.nominal is not None:
+            real += _attr("nominal", _real(v.nominal))
+        out += [f"    <ScalarVariable{attrs}>", f"      <Real{real}/>", "    </ScalarVariable>"]
+    out.append("  </ModelVariables>")
+    out.append("  <ModelStructure>")
+    for tag, items in (("Outputs", desc.outputs()), ("Derivatives", desc.derivatives()),
+                       ("InitialUnknowns", desc.initial_unknowns())):
+        out.append(f"    <{tag}>")
+        out += [f'      <Unknown index="{i}"/>' for i in items]
+        out.append(f"    </{tag}>")
+    out.append("  </ModelStructure>")
+    out.append("</fmiModelDescription>")
+    return "\n".join(out) + "\n"
+
+
+# ------------------------------------------------------------------------------------------
+# the C header of the shared boilerplate (fmus/common)
+
+
+def _c_double(value: float | None) -> str:
+    return "NAN" if value is None else repr(float(value))
+
+
+def c_string(text: str) -> str:
+    """A C string literal holding ``text`` (UTF-8; quotes, backslashes and non-printable
+    bytes escaped in octal)."""
+    out = []
+    for byte in text.encode("utf-8"):
+        ch = chr(byte)
+        if ch in '"\\?':
+            out.append("\\" + ch)
+        elif 32 <= byte < 127:
+            out.append(ch)
+        else:
+            out.append(f"\\{byte:03o}")
+    return '"' + "".join(out) + '"'
+
+
+def variables_header(desc: FmuDescription) -> str:
+    """``model_variables.h``: value references, start values, state nominals and variable
+    kinds in value-reference order, as ``fmus/common/fmi2_functions.c`` expects (states at
+    ``0..n-1``, their derivatives at ``n..2n-1``)."""
+    variables = sorted(desc.variables, key=lambda v: v.value_reference)
+    states = [v for v in variables if v.kind == "state"]
+    lines = [
+        "/* Generated by sysid.fmi.description; do not edit. */",
+        "#ifndef MODEL_VARIABLES_H",
+        "#define MODEL_VARIABLES_H",
+        "#include <math.h>",
+        "",
+        f"#define MODEL_IDENTIFIER {desc.identifier}",
+        f'#define MODEL_GUID "{desc.guid}"',
+        f"#define N_REALS {len(variables)}",
+        f"#define N_STATES {len(states)}",
+        "#define VR_STATE0 0",
+        f"#define VR_DERIV0 {len(states)}",
+        "",
+    ]
+    lines += [f"#define VR_{v.c_name} {v.value_reference}" for v in variables]
+    lines += ["", "static const double MODEL_START[N_REALS] = {"]
+    lines += [f"    {_c_double(v.start)}, /* {v.c_name} */" for v in variables]
+    lines += ["};", "", "static const double MODEL_STATE_NOMINAL[N_STATES] = {"]
+    lines += [f"    {_c_double(v.nominal or 1.0)}, /* {v.c_name} */" for v in states]
+    lines += ["};", "", "static const unsigned char MODEL_VAR_KIND[N_REALS] = {"]
+    lines += [f"    {KIND_CODE[v.kind]}, /* {v.c_name} */" for v in variables]
+    lines += ["};", "", "static const char *const MODEL_VAR_NAMES[N_REALS] = {"]
+    lines += [f"    {c_string(v.name)}," for v in variables]
+    lines += ["};", "", "#endif", ""]
+    return "\n".join(lines)
