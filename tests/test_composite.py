@@ -196,7 +196,7 @@ def test_composite_beats_every_single_window(noisy_mimo):
     optimisation with the paper's coherence term): the composite response's RMS relative
     error against the analytic response is no larger than that of the best single window,
     over the whole grid (every pair with a path, 0.13-30 rad/s) and over the coherent band
-    (composite partial coherence >= 0.6, the methods.md guideline).
+    (composite partial coherence >= 0.6, the docs/methods.md guideline).
 
     Measured: whole grid 0.058 vs best window 0.085; coherent band 0.032 vs 0.040. With the
     paper's Eq. 15 scales the coherence term distorts H (0.20 over the whole grid)."""

@@ -1,6 +1,6 @@
 """Linearisation: numerical consistency, eigenvalues, and Padfield's Bo-105 hover data.
 
-Reference (reference/helicopter.md): Padfield's Helisim Bo-105 hover derivatives, SI and rad,
+Reference (docs/methods.md, "The truth helicopter"): Padfield's Helisim Bo-105 hover derivatives, SI and rad,
 for a 2200 kg aircraft with Ixx, Iyy, Izz = 1433, 4973, 4099 kg m^2.
 
 Scaling to our aircraft: the truth model keeps the Bo-105 rotor, geometry and aerodynamics

@@ -1,6 +1,6 @@
 """Frequency-domain identification against a known hover-like 6-DoF system.
 
-The truth is Padfield's Helisim Bo-105 hover model (reference/helicopter.md) converted to
+The truth is Padfield's Helisim Bo-105 hover model (docs/methods.md, "The truth helicopter") converted to
 analysis units, with the kinematic terms of the paper's hover trim (theta0 6.76 deg,
 phi0 -2.87 deg) and the paper's delays on the lon -> p (0.2 s) and lat -> q (0.1 s) B entries.
 Derivatives that the paper's 13 pairs cannot determine to the 20 % Cramer-Rao guideline are
@@ -24,7 +24,7 @@ from sysid.identify.frequency_domain import _Problem
 from sysid.models import six_dof_structure, simulate
 from sysid.core.units import DEG, FT
 
-# Padfield, Helisim Bo-105 hover, SI and rad (helicopter.md).
+# Padfield, Helisim Bo-105 hover, SI and rad (Helicopter Flight Dynamics; docs/methods.md).
 _STABILITY_SI = dict(X_q=0.7086, Z_w=-0.3220, M_u=0.1045, M_q=-3.7472, M_v=0.0900,
                      Y_p=-0.7365, L_u=0.3402, L_v=-0.4114, L_p=-14.1949, N_u=0.0607,
                      N_p=-2.4296, N_r=-0.3185)
@@ -35,7 +35,7 @@ _CONTROL_SI = {"X": {"lon": -8.477}, "Z": {"col": -92.96},
                "Y": {"lat": -8.477, "ped": 5.043},
                "L": {"col": 4.993, "lon": -66.37, "lat": -170.08},
                "N": {"col": 19.73, "lon": -11.80, "lat": -30.24, "ped": -15.46}}
-# Stick gearing, rad of blade angle per % of travel (control ranges of helicopter.md / 100).
+# Stick gearing, rad of blade angle per % of travel (GARTEUR AG-06 control ranges / 100, docs/methods.md).
 _GEARING = {"lon": 0.155 * DEG, "lat": 0.100 * DEG, "col": 0.160 * DEG, "ped": 0.240 * DEG}
 TRUE_DELAYS = {"tau_L_lon": 0.2, "tau_M_lat": 0.1}
 DELAY_ENTRIES = {"tau_L_lon": "p,lon", "tau_M_lat": "q,lat"}

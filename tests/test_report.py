@@ -71,7 +71,7 @@ def _model(structure, theta, method, rng, *, cr_scale, j_pairs, j_ave=None, pair
 
 
 def _sweep(t, axis_seed):
-    """A Tischler sweep (methods.md: C1 = 4, C2 = 0.0187) of 8 % amplitude."""
+    """A Tischler sweep (docs/methods.md: C1 = 4, C2 = 0.0187) of 8 % amplitude."""
     T = t[-1]
     wmin, wmax = 0.3, 12.0
     K = 0.0187 * (np.exp(4.0 * t / T) - 1.0)

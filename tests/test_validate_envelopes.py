@@ -17,7 +17,7 @@ def _response(values):
 
 def test_muad_values_quoted_in_the_literature():
     bounds = MUAD.bounds(np.array([1.0]))
-    # methods.md: "at 1 rad/s the lower phase bound is about -14 deg".
+    # docs/methods.md: "at 1 rad/s the lower phase bound is about -14 deg".
     assert float(bounds.phase_lower[0]) == pytest.approx(-14.07, abs=0.1)
     # The gain bounds bracket 0 dB at every frequency (a perfect model is always inside).
     b = MUAD.bounds(OMEGA)

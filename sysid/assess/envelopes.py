@@ -88,7 +88,7 @@ class Envelope:
 
 
 #: Maximum unnoticeable added dynamics (Hoh; MIL-STD-1797A). Coefficients with the delay terms
-#: as collected in shared/reference/methods.md; checked there against the published plot
+#: as in docs/methods.md, "Validation envelopes"; checked against the published plot
 #: (lower phase bound about -14 deg at 1 rad/s).
 MUAD = Envelope(
     name="MUAD",

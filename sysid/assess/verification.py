@@ -1,5 +1,5 @@
 """Time-domain verification of an identified model on manoeuvres not used to fit it
-(CIFER's VERIFY; methods.md, "Time-domain fit and verification"; Tischler & Remple 2012,
+(CIFER's VERIFY; docs/methods.md, "Time-domain fit and verification"; Tischler & Remple 2012,
 ch. 14).
 
 The model is *held*: its derivatives and delays are not touched. It is simulated

@@ -246,7 +246,7 @@ def default_campaign(airspeed_kt: float = 0.0, *, noise: bool = True, seed: int 
 
     Sweeps run 0.1-20 rad/s (covering the flapping/inflow modes near 14-16 rad/s). One
     long-period cycle at 0.1 rad/s already takes 63 s, so records are 150 s with a single
-    long-period cycle, leaving 87 s for the exponential part (methods.md: 60-120 s of sweep
+    long-period cycle, leaving 87 s for the exponential part (docs/methods.md: 60-120 s of sweep
     and at least 2-5 periods of the lowest frequency over the concatenated records); multistep
     base widths target the 1-3 rad/s band of the rigid-body modes. With ``noise`` the default
     sensor noise levels and light turbulence (0.3 m/s rms) are on.

@@ -1,6 +1,6 @@
 """Frequency-domain output-error identification (CIFER DERIVID style).
 
-Cost (methods.md, "Frequency-domain fit"; Tischler & Remple 2012). For each selected
+Cost (docs/methods.md, "Frequency-domain fit"; Tischler & Remple 2012). For each selected
 output/input pair ``l``, over ``n_omega`` (default 20) log-spaced frequencies of the pair's
 coherent range,
 
@@ -23,7 +23,7 @@ Minimisation: :func:`scipy.optimize.least_squares` on the residual vector
 ``sum r^2 = J``), with the analytic Jacobian of Eq. 19 (see
 :meth:`sysid.models.LinearStructure.pair_response`). Default method ``"trf"``: a trust-region
 Levenberg-Marquardt-type algorithm that, unlike MINPACK's ``"lm"``, honours bounds, which
-keeps free delays in their physical range 0..0.3 s (methods.md). ``"lm"`` is accepted when no
+keeps free delays in their physical range 0..0.3 s (docs/methods.md, "Delays"). ``"lm"`` is accepted when no
 parameter is bounded. The fit is restarted once from the solution perturbed by a seeded
 +-20 % to confirm the minimum; the better of the two is kept and both costs are reported.
 
@@ -80,9 +80,9 @@ __all__ = [
 DEFAULT_PAIRS = (("q", "lon"), ("p", "lon"), ("u", "lon"), ("p", "lat"), ("q", "lat"),
                  ("v", "lat"), ("r", "lat"), ("w", "col"), ("r", "col"), ("p", "col"),
                  ("q", "col"), ("r", "ped"), ("v", "ped"))
-W_G = 1.0  #: magnitude weight (per dB^2), methods.md
-W_P = 0.01745  #: phase weight (per deg^2), methods.md
-N_POINTS = 20  #: frequency points per pair (methods.md)
+W_G = 1.0  #: magnitude weight (per dB^2), docs/methods.md
+W_P = 0.01745  #: phase weight (per deg^2), docs/methods.md
+N_POINTS = 20  #: frequency points per pair (docs/methods.md)
 #: A free parameter has "run away" when the fit ends with it this many times larger than its
 #: start value (and than 1 in analysis units) and its Cramer-Rao bound is unbounded or above
 #: :data:`RUNAWAY_CR_PERCENT`: the optimiser slid along a valley in which only ratios are

@@ -1,4 +1,4 @@
-"""Stepwise model reduction (methods.md, "Model reduction"; Tischler & Remple 2012).
+"""Stepwise model reduction (docs/methods.md, "Model reduction"; Tischler & Remple 2012).
 
 Generic over the fit: the caller passes a function that re-converges the model with a given
 set of parameters removed, so the frequency-domain fit and the time-domain output-error fit
@@ -117,7 +117,7 @@ def stepwise_reduction(fit: Callable[[tuple[str, ...], FitOutcome], FitOutcome],
     initial : FitOutcome
         The converged full model.
     cr_max, insensitivity_max : float
-        Guidelines in percent of the parameter value (defaults 20 and 10, methods.md).
+        Guidelines in percent of the parameter value (defaults 20 and 10, docs/methods.md).
     max_cost_increase : float
         Largest accepted rise of ``FitOutcome.cost`` per removal (default 2 units of J_ave).
     protected : sequence of str

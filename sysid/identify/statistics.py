@@ -10,7 +10,7 @@ with ``e_k`` the raw errors and ``w_k`` the cost's weights, then with ``G = dr/d
 
     H = G^T G = sum_k w_k (de_k/dtheta)(de_k/dtheta)^T                  (``scale`` = 1)
 
-and (methods.md, "Frequency-domain fit"; Tischler & Remple 2012)
+and (docs/methods.md, "Frequency-domain fit"; Tischler & Remple 2012)
 
     CR_i = sqrt( (H^-1)_ii )          Cramer-Rao bound (one standard deviation)
     I_i  = 1 / sqrt( H_ii )           insensitivity (the bound if theta_i alone were free)

@@ -1,6 +1,6 @@
 """Time-domain output-error identification (maximum likelihood, Levenberg-Marquardt).
 
-The paper's time-domain reference method (methods.md, "Time-domain fit and verification";
+The paper's time-domain reference method (docs/methods.md, "Time-domain fit and verification";
 Jategaonkar, *Flight Vehicle System Identification*, 2nd ed., AIAA 2015, ch. 4; Klein & Morelli,
 *Aircraft System Identification*, AIAA 2006, ch. 6). The linear model of a structure
 (paper Eq. 18, per-B-entry delays)
@@ -29,7 +29,7 @@ problem (:func:`scipy.optimize.least_squares`, ``"trf"``, which honours the 0..0
 of free delays); (2) ``R_jj = mean_k e_j[k]^2`` (its ML estimate); repeated until the relative
 changes of every ``R_jj`` and of ``L`` are below ``r_tol``/``cost_tol``.
 
-Nuisance parameters (methods.md): a bias per output and an initial state per record. Both
+Nuisance parameters (docs/methods.md, "Time-domain fit and verification"): a bias per output and an initial state per record. Both
 enter the outputs *linearly* for a given ``theta`` (``y = y_u(theta) + O(theta) x0 + b`` with
 ``O[k] = C Phi^k``), so they are eliminated by variable projection (Golub & Pereyra 1973):
 at every evaluation they are the weighted linear least-squares solution for that ``theta``,

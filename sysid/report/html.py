@@ -7,7 +7,7 @@ inline script, no external resources, so it opens offline -- plus every plot as 
 directory and moved into place at the end: a failure leaves no half-written report.
 
 Sections (each only when its groups exist; "not available" otherwise), with the items of
-``shared/reference/paper.md`` they reproduce:
+the paper (*Comparison of frequency and time domain identification of a helicopter in hover*) they reproduce:
 
 ========================  ==========================================================
 section                   paper item, source groups
@@ -20,12 +20,12 @@ Input/output pairs        Figures 4-15; ``/frequency_response``, ``/models/*``,
                           ``/linearization``; MUAD mismatch (Eq. 20)
 Time-domain verification  Figures 16-19; ``/verification/<maneuver>``
 Derivatives               Tables 2 (stability) and 3 (control, delays); ``/models/*``
-Guidelines                cost and accuracy guidelines of ``reference/methods.md``
+Guidelines                cost and accuracy guidelines of ``docs/methods.md``
 Model reduction           ``/models/<method>/reduction`` or the model's ``reduction_steps``
 Provenance                versions, seeds, FMU, campaign settings
 ========================  ==========================================================
 
-Guideline thresholds (:data:`GUIDELINES`, Tischler & Remple 2012 as quoted in methods.md):
+Guideline thresholds (:data:`GUIDELINES`, Tischler & Remple 2012; docs/methods.md, "Guidelines"):
 ``J_ave <= 100``, every pair ``J <= 200``, Cramer-Rao bound ``<= 20 %``, insensitivity
 ``<= 10 %``, ``J_rms <= 2``, ``TIC <= 0.25``, composite coherence ``>= 0.6`` over the fitted
 range, cross-control coherence ``<= 0.5``.
@@ -899,7 +899,7 @@ def section_guidelines(ctx: _Context, pair_results: dict[str, _PairResult], time
                          table_id="table-coherence")
                   if data_rows else _not_available("no composite frequency responses"))
     return ("<p>Thresholds from the rotorcraft system-identification guidelines "
-            "(Tischler &amp; Remple 2012, as collected in reference/methods.md). "
+            "(Tischler &amp; Remple 2012; sysid's docs/methods.md, Guidelines). "
             "n/a: the quantity is not in the campaign.</p>"
             + (model_table if columns else _not_available("no models"))
             + f"<h3>Composite coherence over the fitted range (γ² ≥ {g['coherence']:g})</h3>"

@@ -5,7 +5,7 @@ Every function takes plain, already extracted data (numpy arrays keyed by name) 
 pyplot state is used, so figures are independent of any interactive backend, deterministic
 (fixed colours per source, no timestamps in the PNG) and safe to build in a loop.
 
-Figure kinds and the paper figures they reproduce (``shared/reference/paper.md``):
+Figure kinds and the figures of the paper (*Comparison of frequency and time domain identification of a helicopter in hover*) they reproduce:
 
 - :func:`inputs_figure` -- the four controls of one sweep manoeuvre (Figure 1).
 - :func:`conditioning_figure` -- conditioned vs unconditioned magnitude or phase of the main

@@ -48,7 +48,7 @@ from sysid.core.errors import InputDataError
 
 #: Default segment overlap (the paper raises it to 80 % to lower the random error).
 DEFAULT_OVERLAP = 0.8
-#: A window needs at least this many independent averages ``T_r / T`` (methods.md).
+#: A window needs at least this many independent averages ``T_r / T`` (docs/methods.md).
 MIN_AVERAGES = 5
 #: Shortest accepted segment, samples (below this the Hann taper is meaningless).
 MIN_SEGMENT_SAMPLES = 8
@@ -218,7 +218,7 @@ def hann_error_constant(overlap: float = DEFAULT_OVERLAP) -> float:
     ``(1 + 2 sum_l c_l^2) / K`` with ``c_l`` the normalised overlap correlation of the squared
     taper at lag ``l`` steps. Hence ``C_eps = sqrt((1 - overlap) (1 + 2 sum_l c_l^2))``:
     0.73 at 50 %, 0.69 at 67-90 % overlap for Hann, the ~0.7 quoted for CIFER-style Hann
-    windows with 50-80 % overlap (methods.md). :data:`DEFAULT_C_EPS` rounds it to 0.7.
+    windows with 50-80 % overlap (docs/methods.md). :data:`DEFAULT_C_EPS` rounds it to 0.7.
     """
     if not 0.0 <= overlap < 1.0:
         raise InputDataError(f"overlap must be in [0, 1), got {overlap}")
