@@ -40,7 +40,7 @@ __all__ = ["Parameter", "LinearStructure", "six_dof_structure", "model_from_data
            "structure_summary", "parse_delay_entry", "entry_name", "DELAY_BOUNDS", "ALL_ROWS",
            "FORCE_STATES"]
 
-#: Physical range of a free delay, s (methods.md, "Delays": 0 to about 0.3 s).
+#: Physical range of a free delay, s (docs/methods.md, "Delays": 0 to about 0.3 s).
 DELAY_BOUNDS = (0.0, 0.3)
 
 _MATRICES = ("A", "B", "C", "D", "delay")
