@@ -658,7 +658,7 @@ def test_linearization_round_trip_and_truth_comparison(truth_fmu, hover_trim, li
 
 
 def _campaign(tmp_path):
-    from sysid.data.io import write_campaign
+    from sysid.data.netcdf import write_campaign
 
     ds = _model()
     tree = xr.DataTree.from_dict({"/": xr.Dataset(attrs={"name": "test"}),
@@ -671,7 +671,7 @@ def _campaign(tmp_path):
 
 def test_cli_export_and_validate(tmp_path, capsys):
     from sysid.cli import main
-    from sysid.data.io import read_campaign
+    from sysid.data.netcdf import read_campaign
 
     path = _campaign(tmp_path)
     out = tmp_path / "model.fmu"
@@ -696,7 +696,7 @@ def test_validate_reports_an_unusable_model_and_validates_the_others(tmp_path, c
     derivatives near 1e19 made CVode fail) is a validation result stored and printed, not a
     crash; the other models are still validated."""
     from sysid.assess import exported as fmu_validation
-    from sysid.data import io
+    from sysid.data import netcdf as io
     from sysid.cli import main
 
     real = fmu_validation.roundtrip_error

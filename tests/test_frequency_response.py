@@ -188,7 +188,7 @@ def test_bad_input_errors_name_the_problem(mimo_records):
 
 def test_cli_writes_frequency_response_group(tmp_path, mimo_records, capsys):
     from sysid.cli import main
-    from sysid.data.io import read_campaign, write_campaign
+    from sysid.data.netcdf import read_campaign, write_campaign
 
     children = {f"maneuvers/sweep_{k}": r for k, r in enumerate(mimo_records[:3])}
     children["maneuvers/doublet_0"] = mimo_records[3]
@@ -287,7 +287,7 @@ def test_transient_terms_need_conditioning_and_distinct_channels():
 
 def test_cli_transient_states(tmp_path):
     from sysid.cli import main
-    from sysid.data.io import read_campaign, write_campaign
+    from sysid.data.netcdf import read_campaign, write_campaign
 
     records, truth = _unstable_pitch_records(n_records=3)
     path = tmp_path / "campaign.nc"

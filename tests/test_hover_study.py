@@ -137,7 +137,7 @@ def test_composite_agrees_with_the_full_linearisation_within_muad(study):
 def _sweep_responses(fmu, campaign):
     """Fly ``campaign`` and return it with the conditioned composite responses of u..r."""
     from sysid.spectral.response import frequency_response
-    from sysid.data.io import maneuvers
+    from sysid.data.campaign import maneuvers
     from sysid.flight_test.campaign import run_campaign
     from sysid.core.units import CONTROLS
 

@@ -378,7 +378,7 @@ def test_full_chain_simulated_sweeps_within_three_cramer_rao_bounds():
 
 @pytest.mark.parametrize("with_linearization", [False, True])
 def test_cli_identify(tmp_path, capsys, with_linearization):
-    io = pytest.importorskip("sysid.data.io")
+    io = pytest.importorskip("sysid.data.netcdf")
     from sysid.cli import main
 
     st = truth_structure()
@@ -405,7 +405,7 @@ def test_cli_identify(tmp_path, capsys, with_linearization):
 
 
 def test_cli_identify_errors(tmp_path, capsys):
-    io = pytest.importorskip("sysid.data.io")
+    io = pytest.importorskip("sysid.data.netcdf")
     from sysid.cli import main
 
     path = tmp_path / "empty.nc"

@@ -1,4 +1,4 @@
-"""Tests of sysid.data.io: exact netCDF round trips, plain-reader compatibility, CSV import errors,
+"""Tests of sysid.data (netcdf, importers, campaign): exact netCDF round trips, plain-reader compatibility, CSV import errors,
 and the ``sysid import`` / ``sysid export-csv`` commands."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import xarray as xr
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from sysid.data import io
+from sysid.data import campaign, importers, netcdf
 from sysid.cli import main
 from sysid.core.errors import InputDataError
 from sysid.core.units import channel_attrs
@@ -75,8 +75,8 @@ def _campaign():
 def test_campaign_round_trip_is_exact(tmp_path):
     tree = _campaign()
     path = tmp_path / "c.nc"
-    io.write_campaign(tree, path)
-    back = io.read_campaign(path)
+    netcdf.write_campaign(tree, path)
+    back = netcdf.read_campaign(path)
     xr.testing.assert_identical(back, tree)
     fr, fr0 = back["frequency_response"], tree["frequency_response"]
     assert fr["H"].dtype == np.complex128 and fr["Gxx"].dtype == np.complex64
@@ -94,7 +94,7 @@ def test_campaign_round_trip_is_exact(tmp_path):
 def test_campaign_opens_in_plain_netcdf4(tmp_path):
     tree = _campaign()
     path = tmp_path / "c.nc"
-    io.write_campaign(tree, path)
+    netcdf.write_campaign(tree, path)
     with netCDF4.Dataset(path) as nc:
         h = nc["frequency_response"].variables["H"]
         assert h.dimensions == ("output", "input", "frequency", "complex")
@@ -110,43 +110,43 @@ def test_campaign_opens_in_plain_netcdf4(tmp_path):
 
 def test_read_campaign_closes_file_so_it_can_be_replaced(tmp_path):
     path = tmp_path / "c.nc"
-    io.write_campaign(_campaign(), path)
-    tree = io.read_campaign(path)
-    io.update_campaign(path, "models/time_domain", xr.Dataset({"c": 1.0}))
+    netcdf.write_campaign(_campaign(), path)
+    tree = netcdf.read_campaign(path)
+    netcdf.update_campaign(path, "models/time_domain", xr.Dataset({"c": 1.0}))
     # the earlier in-memory copy is intact and the new file has the new group
     assert "time_domain" not in tree["models"].children
-    assert float(io.read_campaign(path)["models/time_domain"]["c"]) == 1.0
+    assert float(netcdf.read_campaign(path)["models/time_domain"]["c"]) == 1.0
     assert tree["frequency_response"].attrs["overlap"] == 0.8
 
 
 def test_update_campaign_insert_replace_and_keep_children(tmp_path):
     path = tmp_path / "new" / "c.nc"
-    io.append_maneuver(path, "sweep_lon_1", _time_history("sweep_lon_1"))
-    io.append_maneuver(path, "sweep_lon_2", _time_history("sweep_lon_2", seed=5))
-    io.append_maneuver(path, "sweep_lon_10", _time_history("sweep_lon_10", seed=6))
-    io.update_campaign(path, "frequency_response", xr.Dataset({"a": ("f", [1.0, 2.0])}))
-    io.update_campaign(path, "frequency_response", xr.Dataset({"b": ("f", [3.0])}))
+    netcdf.append_maneuver(path, "sweep_lon_1", _time_history("sweep_lon_1"))
+    netcdf.append_maneuver(path, "sweep_lon_2", _time_history("sweep_lon_2", seed=5))
+    netcdf.append_maneuver(path, "sweep_lon_10", _time_history("sweep_lon_10", seed=6))
+    netcdf.update_campaign(path, "frequency_response", xr.Dataset({"a": ("f", [1.0, 2.0])}))
+    netcdf.update_campaign(path, "frequency_response", xr.Dataset({"b": ("f", [3.0])}))
     # a Dataset on a parent group keeps the children
-    io.update_campaign(path, "maneuvers", xr.Dataset(attrs={"count": 3}))
-    tree = io.read_campaign(path)
+    netcdf.update_campaign(path, "maneuvers", xr.Dataset(attrs={"count": 3}))
+    tree = netcdf.read_campaign(path)
     assert list(tree["frequency_response"].data_vars) == ["b"]
     assert tree["maneuvers"].attrs["count"] == 3
-    assert io.list_maneuvers(tree) == ["sweep_lon_1", "sweep_lon_2", "sweep_lon_10"]
-    assert io.list_maneuvers(tree, "sweep_lon_1*") == ["sweep_lon_1", "sweep_lon_10"]
-    assert io.list_maneuvers(tree, "3211_*") == []
-    ds = io.maneuvers(tree, "sweep_lon_2")
+    assert campaign.list_maneuvers(tree) == ["sweep_lon_1", "sweep_lon_2", "sweep_lon_10"]
+    assert campaign.list_maneuvers(tree, "sweep_lon_1*") == ["sweep_lon_1", "sweep_lon_10"]
+    assert campaign.list_maneuvers(tree, "3211_*") == []
+    ds = campaign.maneuvers(tree, "sweep_lon_2")
     xr.testing.assert_identical(ds[0], _time_history("sweep_lon_2", seed=5))
     # a DataTree replaces the whole sub-tree
     sub = xr.DataTree.from_dict({"only": _time_history("only")})
-    io.update_campaign(path, "maneuvers", sub)
-    assert io.list_maneuvers(io.read_campaign(path)) == ["only"]
+    netcdf.update_campaign(path, "maneuvers", sub)
+    assert campaign.list_maneuvers(netcdf.read_campaign(path)) == ["only"]
 
 
 def test_appending_new_groups_gives_the_same_campaign_as_a_full_rewrite(tmp_path, monkeypatch):
     """New groups are appended to a copy of the file instead of rewriting the campaign; the
     file read back must be what writing the whole combined tree gives."""
     path = tmp_path / "c.nc"
-    io.write_campaign(_campaign(), path)
+    netcdf.write_campaign(_campaign(), path)
     g = np.random.default_rng(4)
     model = xr.Dataset(
         {"A": (("state_dot", "state"), g.standard_normal((2, 2)) + 1j),
@@ -159,70 +159,70 @@ def test_appending_new_groups_gives_the_same_campaign_as_a_full_rewrite(tmp_path
     def no_rewrite(*args, **kwargs):
         raise AssertionError("a new group must not rewrite the campaign")
 
-    monkeypatch.setattr(io, "_update_campaign", no_rewrite)
-    io.update_campaign(path, "models/time_domain", model)
-    io.update_campaign(path, "verification", sub)
-    io.append_maneuver(path, "2311_ped_1", _time_history("2311_ped_1", seed=9))
+    monkeypatch.setattr(netcdf, "_rewrite_groups", no_rewrite)
+    netcdf.update_campaign(path, "models/time_domain", model)
+    netcdf.update_campaign(path, "verification", sub)
+    netcdf.append_maneuver(path, "2311_ped_1", _time_history("2311_ped_1", seed=9))
     expected = _campaign()
     expected["models/time_domain"] = xr.DataTree(model)
     expected["verification"] = sub
     expected["maneuvers/2311_ped_1"] = xr.DataTree(_time_history("2311_ped_1", seed=9))
     reference = tmp_path / "reference.nc"
-    io.write_campaign(expected, reference)
-    xr.testing.assert_identical(io.read_campaign(path), io.read_campaign(reference))
-    assert io.read_campaign(path)["models/time_domain"].attrs["names"] == ["a", "b"]
+    netcdf.write_campaign(expected, reference)
+    xr.testing.assert_identical(netcdf.read_campaign(path), netcdf.read_campaign(reference))
+    assert netcdf.read_campaign(path)["models/time_domain"].attrs["names"] == ["a", "b"]
     # replacing an existing group still works (through the full rewrite)
     monkeypatch.undo()
-    io.update_campaign(path, "models/time_domain", xr.Dataset({"c": 1.0}))
-    assert list(io.read_campaign(path)["models/time_domain"].data_vars) == ["c"]
+    netcdf.update_campaign(path, "models/time_domain", xr.Dataset({"c": 1.0}))
+    assert list(netcdf.read_campaign(path)["models/time_domain"].data_vars) == ["c"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.nc", "reference.nc"]
 
 
 def test_group_attributes_are_read_and_set_without_touching_the_data(tmp_path):
     path = tmp_path / "c.nc"
-    assert io.group_attrs(path, "frequency_response") is None  # no file
-    io.write_campaign(_campaign(), path)
-    assert io.group_attrs(path, "models/missing") is None
-    attrs = io.group_attrs(path, "frequency_response")
+    assert netcdf.group_attrs(path, "frequency_response") is None  # no file
+    netcdf.write_campaign(_campaign(), path)
+    assert netcdf.group_attrs(path, "models/missing") is None
+    attrs = netcdf.group_attrs(path, "frequency_response")
     assert attrs["options"] == {"C_eps": 0.1, "names": ["a", "b"]} and attrs["z"] == 1 - 2j
-    before = io.read_campaign(path)
-    io.set_group_attrs(path, "models/deep/nested/group", {"workflow_key": "abc", "ok": True})
-    after = io.read_campaign(path)
+    before = netcdf.read_campaign(path)
+    netcdf.set_group_attrs(path, "models/deep/nested/group", {"workflow_key": "abc", "ok": True})
+    after = netcdf.read_campaign(path)
     node = after["models/deep/nested/group"]
     assert node.attrs == {"workflow_key": "abc", "ok": True}
     xr.testing.assert_identical(node.to_dataset().drop_attrs(),
                                 before["models/deep/nested/group"].to_dataset().drop_attrs())
-    io.set_group_attrs(path, "frequency_response", {"overlap": 0.5})
-    fr = io.read_campaign(path)["frequency_response"]
+    netcdf.set_group_attrs(path, "frequency_response", {"overlap": 0.5})
+    fr = netcdf.read_campaign(path)["frequency_response"]
     assert fr.attrs["overlap"] == 0.5 and fr.attrs["pair"] == (1, 2)
     xr.testing.assert_identical(fr.to_dataset(), after["frequency_response"].to_dataset()
                                 .assign_attrs(overlap=0.5))
     content = path.read_bytes()
     with pytest.raises(InputDataError, match="no group '/models/missing'"):
-        io.set_group_attrs(path, "models/missing", {"x": 1})
+        netcdf.set_group_attrs(path, "models/missing", {"x": 1})
     with pytest.raises(InputDataError, match="thing"):
-        io.set_group_attrs(path, "frequency_response", {"thing": object()})
+        netcdf.set_group_attrs(path, "frequency_response", {"thing": object()})
     assert path.read_bytes() == content
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.nc"]
     junk = tmp_path / "junk.nc"
     junk.write_bytes(b"not netcdf")
-    assert io.group_attrs(junk, "frequency_response") is None
+    assert netcdf.group_attrs(junk, "frequency_response") is None
 
 
 def _update_many(path: str, writer: int, count: int) -> None:
     for k in range(count):
-        io.update_campaign(path, f"models/writer{writer}_{k}",
-                           xr.Dataset({"value": ("parameter", [float(k)])}))
+        netcdf.update_campaign(path, f"models/writer{writer}_{k}",
+                               xr.Dataset({"value": ("parameter", [float(k)])}))
 
 
 def test_concurrent_updates_from_processes_keep_every_group(tmp_path):
-    """Two processes each adding groups to one campaign (the two fits of a study in a Dask
-    batch): every group of both survives. Without the lock in update_campaign each
+    """Two processes of one machine each adding groups to one campaign (e.g. two ``sysid``
+    commands on one file): every group of both survives. Without the lock in update_campaign each
     read-modify-write can drop the other process's last group."""
     import multiprocessing
 
     path = tmp_path / "c.nc"
-    io.write_campaign(_campaign(), path)
+    netcdf.write_campaign(_campaign(), path)
     context = multiprocessing.get_context("spawn")
     workers = [context.Process(target=_update_many, args=(str(path), w, 12)) for w in (0, 1)]
     for w in workers:
@@ -230,29 +230,29 @@ def test_concurrent_updates_from_processes_keep_every_group(tmp_path):
     for w in workers:
         w.join(120)
         assert w.exitcode == 0
-    written = {n for n in io.read_campaign(path)["models"].children if n.startswith("writer")}
+    written = {n for n in netcdf.read_campaign(path)["models"].children if n.startswith("writer")}
     assert written == {f"writer{w}_{k}" for w in (0, 1) for k in range(12)}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.nc"]   # no lock file left
 
 
 def test_write_failure_leaves_previous_file(tmp_path):
     path = tmp_path / "c.nc"
-    io.write_campaign(_campaign(), path)
+    netcdf.write_campaign(_campaign(), path)
     before = path.read_bytes()
     bad = xr.Dataset(attrs={"thing": object()})
     with pytest.raises(InputDataError, match="thing"):
-        io.update_campaign(path, "bad", bad)
+        netcdf.update_campaign(path, "bad", bad)
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.nc"]
 
 
 def test_read_campaign_errors(tmp_path):
     with pytest.raises(InputDataError, match="does not exist"):
-        io.read_campaign(tmp_path / "missing.nc")
+        netcdf.read_campaign(tmp_path / "missing.nc")
     junk = tmp_path / "junk.nc"
     junk.write_bytes(b"not a netcdf file at all")
     with pytest.raises(InputDataError, match="junk.nc"):
-        io.read_campaign(junk)
+        netcdf.read_campaign(junk)
 
 
 # --------------------------------------------------------------------------------------------
@@ -261,23 +261,23 @@ def test_read_campaign_errors(tmp_path):
 
 def test_validate_time_history_returns_dt_and_names_problems():
     ds = _time_history()
-    assert io.validate_time_history(ds, ["lon", "q"]) == pytest.approx(0.01, rel=1e-12)
+    assert importers.validate_time_history(ds, ["lon", "q"]) == pytest.approx(0.01, rel=1e-12)
     with pytest.raises(InputDataError, match=r"missing channel\(s\) \['r'\].*available"):
-        io.validate_time_history(ds, ["q", "r"])
+        importers.validate_time_history(ds, ["q", "r"])
     bad = ds.copy(deep=True)
     bad["q"][17] = np.nan
     with pytest.raises(InputDataError, match=r"'q'.*sample 17 \(time 0.17 s\)"):
-        io.validate_time_history(bad, ["q"])
+        importers.validate_time_history(bad, ["q"])
     t = ds.time.values.copy()
     t[40] += 0.003
     with pytest.raises(InputDataError, match="not uniform at sample 40"):
-        io.validate_time_history(ds.assign_coords(time=t))
+        importers.validate_time_history(ds.assign_coords(time=t))
     t = ds.time.values.copy()
     t[[10, 11]] = t[[11, 10]]
     with pytest.raises(InputDataError, match="not strictly increasing at sample 11"):
-        io.validate_time_history(ds.assign_coords(time=t))
+        importers.validate_time_history(ds.assign_coords(time=t))
     with pytest.raises(InputDataError, match="no 'time' coordinate"):
-        io.validate_time_history(ds.rename(time="t"))
+        importers.validate_time_history(ds.rename(time="t"))
 
 
 # --------------------------------------------------------------------------------------------
@@ -287,9 +287,9 @@ def test_validate_time_history_returns_dt_and_names_problems():
 def test_csv_round_trip_values_and_attrs(tmp_path):
     ds = _time_history()
     path = tmp_path / "sweep_lon_1.csv"
-    io.write_csv(ds, path)
+    importers.write_csv(ds, path)
     assert path.read_text().splitlines()[1] == "time [s],lon [%],q [deg/s],theta [deg]"
-    back = io.read_time_history(path)
+    back = importers.read_time_history(path)
     for ch in ("lon", "q", "theta"):
         np.testing.assert_array_equal(back[ch].values, ds[ch].values.astype(float))
         assert back[ch].attrs["units"] == ds[ch].attrs["units"]
@@ -306,20 +306,20 @@ def test_read_csv_mapping_units_kind_and_trim(tmp_path):
               for a, b in zip(t, q_rad)]
     path = tmp_path / "2311_lon_flight12.csv"
     path.write_text("\n".join(lines) + "\n")
-    ds = io.read_time_history(
+    ds = importers.read_time_history(
         path, mapping={"time": "T_S", "lon": "DLON_PCT", "q": "Q_RADS", "phi": "PHI"},
         units={"q": "rad/s", "phi": "rad"}, trim={"phi": 1.25})
     np.testing.assert_allclose(ds.q.values, np.degrees(q_rad), rtol=1e-12)
     assert ds.q.attrs["units"] == "deg/s" and ds.q.attrs["source_column"] == "Q_RADS"
     assert ds.time.values[0] == 0.0 and ds.attrs["time_offset"] == pytest.approx(12.0)
-    assert io.validate_time_history(ds, ["lon", "q"]) == pytest.approx(0.02)
+    assert importers.validate_time_history(ds, ["lon", "q"]) == pytest.approx(0.02)
     assert ds.attrs["kind"] == "2311" and ds.attrs["axis"] == "lon"
     assert ds.attrs["maneuver"] == "2311_lon_flight12"
     assert ds.attrs["trim_phi"] == 1.25
     # first-second mean: samples with time < 1 s
     assert ds.attrs["trim_q"] == pytest.approx(np.degrees(q_rad[:50]).mean(), rel=1e-12)
     assert ds.attrs["trim_lon"] == pytest.approx(50.0)
-    named = io.read_time_history(path, mapping={"time": "T_S", "lon": "DLON_PCT"},
+    named = importers.read_time_history(path, mapping={"time": "T_S", "lon": "DLON_PCT"},
                                  kind="sweep", name="flight12_run3")
     assert named.attrs["kind"] == "sweep" and named.attrs["maneuver"] == "flight12_run3"
     assert list(named.data_vars) == ["lon"]
@@ -330,14 +330,14 @@ def test_read_whitespace_and_netcdf_from_other_tools(tmp_path):
     txt = tmp_path / "doublet_ped.txt"
     txt.write_text("time  ped   r\n"
                    + "\n".join(f"{a:.17g} {np.cos(a):.17g}  {a:.17g}" for a in t))
-    ds = io.read_time_history(txt)
+    ds = importers.read_time_history(txt)
     assert ds.attrs["kind"] == "doublet" and ds.attrs["axis"] == "ped"
     np.testing.assert_array_equal(ds.ped.values, np.cos(t))
     nc = tmp_path / "other.nc"
     xr.Dataset({"Q_DEGS": ("time", np.sin(t), {"units": "deg/s"})},
                coords={"time": ("time", t + 100.0, {"units": "seconds since 2024-01-01"})}
                ).to_netcdf(nc)
-    ds = io.read_time_history(nc, mapping={"q": "Q_DEGS"})
+    ds = importers.read_time_history(nc, mapping={"q": "Q_DEGS"})
     np.testing.assert_array_equal(ds.q.values, np.sin(t))
     np.testing.assert_allclose(ds.time.values, t, atol=1e-12)
     assert ds.attrs["kind"] == "imported"
@@ -374,7 +374,7 @@ def _csv(tmp_path, text, name="f.csv"):
 def test_read_csv_errors_name_the_problem(tmp_path, text, kwargs, pattern):
     path = _csv(tmp_path, text)
     with pytest.raises(InputDataError, match=pattern) as info:
-        io.read_time_history(path, **kwargs)
+        importers.read_time_history(path, **kwargs)
     assert "f.csv" in str(info.value)
 
 
@@ -382,13 +382,13 @@ def test_read_binary_garbage_and_missing_file(tmp_path):
     path = tmp_path / "g.csv"
     path.write_bytes(bytes(range(256)))
     with pytest.raises(InputDataError, match="UTF-8"):
-        io.read_time_history(path)
+        importers.read_time_history(path)
     with pytest.raises(InputDataError, match="does not exist"):
-        io.read_time_history(tmp_path / "nope.csv")
+        importers.read_time_history(tmp_path / "nope.csv")
     fake = tmp_path / "fake.nc"
     fake.write_bytes(b"CDF\x01garbage")
     with pytest.raises(InputDataError, match="fake.nc"):
-        io.read_time_history(fake)
+        importers.read_time_history(fake)
 
 
 _cell = st.one_of(st.floats(allow_nan=True, allow_infinity=True).map(repr),
@@ -404,7 +404,7 @@ def test_fuzz_malformed_files_raise_only_input_data_error(tmp_path, header, rows
     path = tmp_path / "fuzz.csv"
     path.write_text("\n".join([sep.join(header)] + [sep.join(r) for r in rows]))
     try:
-        ds = io.read_time_history(path)
+        ds = importers.read_time_history(path)
     except InputDataError:
         return
     assert isinstance(ds, xr.Dataset) and ds.sizes["time"] >= 2
@@ -417,7 +417,7 @@ def test_fuzz_binary_files_raise_only_input_data_error(tmp_path, data):
     path = tmp_path / "fuzz.dat"
     path.write_bytes(data)
     try:
-        io.read_time_history(path)
+        importers.read_time_history(path)
     except InputDataError:
         pass
 
@@ -442,8 +442,8 @@ def test_cli_import_and_export(tmp_path, capsys):
     rc = main(["import", str(f1), str(f2), "-o", str(out), "--map", "lon=DLON,q=Q",
                "--kind", "3211", "--trim", "theta=2.5,lon=49"])
     assert rc == 0
-    tree = io.read_campaign(out)
-    assert io.list_maneuvers(tree) == ["run7", "sweep_lon_1"]
+    tree = netcdf.read_campaign(out)
+    assert campaign.list_maneuvers(tree) == ["run7", "sweep_lon_1"]
     ds = tree["maneuvers/sweep_lon_1"].to_dataset()
     assert ds.attrs["kind"] == "3211" and ds.attrs["trim_lon"] == 49.0
     assert ds.attrs["trim_theta"] == 2.5
@@ -452,14 +452,14 @@ def test_cli_import_and_export(tmp_path, capsys):
     assert tree.attrs["campaign"] == "campaign"
     csv = tmp_path / "exported.csv"
     assert main(["export-csv", str(out), "sweep_lon_1", "-o", str(csv)]) == 0
-    back = io.read_time_history(csv)
+    back = importers.read_time_history(csv)
     np.testing.assert_array_equal(back.q.values, ds.q.values)
     assert back.attrs["maneuver"] == "sweep_lon_1"
     # --units overrides the header unit
     out2 = tmp_path / "c2.nc"
     assert main(["import", str(f1), "-o", str(out2), "--map", "lon=DLON", "--map", "q=Q",
                  "--units", "q=deg/s"]) == 0
-    q = io.read_campaign(out2)["maneuvers/sweep_lon_1"]["q"].values
+    q = netcdf.read_campaign(out2)["maneuvers/sweep_lon_1"]["q"].values
     np.testing.assert_allclose(q, 0.01 * np.cos(t), rtol=1e-12)
 
 
@@ -486,9 +486,34 @@ def test_cli_failure_leaves_no_output(tmp_path, capsys):
 
 
 def test_trim_from_attrs_takes_each_channel_from_the_first_numeric_source():
-    from sysid.data.io import trim_from_attrs
-
+    trim_from_attrs = campaign.trim_from_attrs
     first = {"trim_lon": 40.0, "trim_q": "n/a"}
     second = xr.Dataset(attrs={"trim_lon": 99.0, "trim_q": 0.5, "trim_theta": 2.7})
     assert trim_from_attrs([first, second]) == {"lon": 40.0, "q": 0.5, "theta": 2.7}
     assert trim_from_attrs([]) == {}
+
+
+def test_one_trim_rule_for_records_with_and_without_trim_attributes():
+    """docs/data_model.md: the ``trim_<channel>`` attribute, else the mean of the first
+    second (samples with t < 1 s); the time-domain fit and verification apply it."""
+    from sysid.assess.verification import _trim as verification_trim
+    from sysid.identify.time_domain import _trim_of
+    from sysid.spectral.spectra import perturbations
+
+    ds = _time_history(n=300, dt=0.01)
+    del ds.attrs["trim_lon"]
+    expected = float(ds["q"].values[:100].mean())   # 0.00 .. 0.99 s
+    assert campaign.record_trim(ds, "q") == expected
+    assert _trim_of(ds, "q") == expected and verification_trim(ds, "q") == expected
+    # the spectra need no trim level: without the attribute they take the record's mean
+    signal = perturbations([ds], ["q", "lon"], ["lon"])[0]
+    np.testing.assert_allclose(signal.sel(channel="q").values, ds["q"].values
+                               - float(ds["q"].values.mean()))
+    assert campaign.record_trim(ds, "q", missing="record_mean") == float(ds["q"].values.mean())
+    ds.attrs["trim_q"] = 0.25
+    assert campaign.record_trim(ds, "q") == 0.25
+    ds.attrs["trim_q"] = float("nan")   # not given: the rule's fallback
+    assert campaign.record_trim(ds, "q") == expected
+    ds.attrs["trim_q"] = "level"
+    with pytest.raises(InputDataError, match="trim_q"):
+        campaign.record_trim(ds, "q")

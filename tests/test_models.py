@@ -140,7 +140,7 @@ def test_dataset_round_trip():
 
 
 def test_dataset_round_trip_through_netcdf(tmp_path):
-    io = pytest.importorskip("sysid.data.io")
+    io = pytest.importorskip("sysid.data.netcdf")
     st, theta = _random_six_dof(seed=4)
     ds = st.to_dataset(theta)
     path = tmp_path / "campaign.nc"

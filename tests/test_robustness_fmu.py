@@ -220,9 +220,10 @@ def test_hostile_archive_is_refused_before_extraction(sandbox, label):
 def test_real_zip_bomb_refused_by_declared_size(sandbox, monkeypatch):
     """A member that really inflates far beyond its compressed size (32 MB of zeros in
     ~32 kB) is refused from the sizes the archive declares, without inflating it."""
-    from sysid.truth import _runtime, load_fmu
+    from sysid.fmi import runtime
+    from sysid.truth import load_fmu
 
-    monkeypatch.setattr(_runtime, "MAX_ARCHIVE_BYTES", 16 << 20)
+    monkeypatch.setattr(runtime, "MAX_ARCHIVE_BYTES", 16 << 20)
     path = write_archive(sandbox["archives"] / "bomb.fmu",
                          {**sandbox["members"], "resources/zeros.bin": bytes(32 << 20)})
     assert path.stat().st_size < 1 << 20
@@ -313,7 +314,9 @@ def test_diverging_campaign_keeps_completed_maneuvers(tmp_path, truth_fmu):
     """Stabilisation off: a small 3211 completes, then a large low-frequency sweep diverges.
     SimulationDiverged names the sweep and a time inside it; the netCDF written so far holds
     the completed 3211 (and no partial sweep)."""
-    from sysid.data import io
+    from sysid.data.campaign import list_maneuvers
+    from sysid.data.importers import validate_time_history
+    from sysid.data.netcdf import read_campaign
     from sysid.flight_test.campaign import Campaign, Maneuver, Stabilisation, run_campaign
 
     campaign = Campaign(
@@ -333,9 +336,9 @@ def test_diverging_campaign_keeps_completed_maneuvers(tmp_path, truth_fmu):
     assert err.maneuver == "sweep_lon_1"
     assert err.time is not None and 0.0 < err.time < 62.0
     assert "'sweep_lon_1'" in str(err) and f"t = {err.time:.2f} s" in str(err)
-    tree = io.read_campaign(out)
-    assert io.list_maneuvers(tree) == ["3211_lon"]
+    tree = read_campaign(out)
+    assert list_maneuvers(tree) == ["3211_lon"]
     first = tree["maneuvers/3211_lon"].to_dataset()
-    io.validate_time_history(first, required=["lon", "q", "theta"])
+    validate_time_history(first, required=["lon", "q", "theta"])
     assert float(abs(first["theta"] - first.attrs["trim_theta"]).max()) < 60.0
     assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(".unstable")]

@@ -1,7 +1,7 @@
 """Fuzzed readers: malformed CSV and netCDF files end in InputDataError, never another
 exception, and a failed ``sysid`` command leaves its output as it was.
 
-The CSV fuzzer starts from a valid time history (as written by :func:`sysid.data.io.write_csv`, or
+The CSV fuzzer starts from a valid time history (as written by :func:`sysid.data.importers.write_csv`, or
 a plain one-header-row file from another tool) and applies up to three hypothesis-chosen
 mutations: truncation, another delimiter, a lost or duplicated header, bad cells (NaN, inf,
 huge numbers, text, decimal commas), swapped, repeated or deleted rows (non-monotonic or
@@ -12,7 +12,7 @@ without ``/maneuvers``, a time coordinate of strings.
 
 Properties checked for every input:
 
-* :func:`sysid.data.io.read_time_history` / :func:`sysid.data.io.read_campaign` either succeed with a
+* :func:`sysid.data.importers.read_time_history` / :func:`sysid.data.netcdf.read_campaign` either succeed with a
   valid result (uniform increasing finite time, finite channels) or raise InputDataError
   with a one-line message;
 * ``sysid import`` and ``sysid frequency-response`` (through :func:`sysid.cli.main`) return
@@ -32,7 +32,7 @@ import xarray as xr
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from sysid.data import io
+from sysid.data import campaign, importers, netcdf
 from sysid.cli import main
 from sysid.core.errors import InputDataError
 
@@ -79,15 +79,15 @@ class _Files(dict):
 def valid_files(tmp_path_factory):
     """Bytes of a sysid CSV, a foreign-style CSV and a campaign netCDF (built once)."""
     root = tmp_path_factory.mktemp("valid")
-    io.write_csv(time_history(), root / "sysid.csv")
+    importers.write_csv(time_history(), root / "sysid.csv")
     ds = time_history()
     lines = ["TIME,DLON_PCT,DLAT_PCT,P_DEGS,Q_DEGS"]
     lines += [f"{t:.3f},{a:.6f},{b:.6f},{c:.6f},{d:.6f}" for t, a, b, c, d in zip(
         ds["time"].values, ds["lon"].values, ds["lat"].values, ds["p"].values,
         ds["q"].values)]
     (root / "foreign.csv").write_text("\n".join(lines) + "\n")
-    io.write_campaign(campaign_tree(), root / "campaign.nc")
-    io.write_campaign(xr.DataTree.from_dict({"/": xr.Dataset(attrs={"campaign": "old"}),
+    netcdf.write_campaign(campaign_tree(), root / "campaign.nc")
+    netcdf.write_campaign(xr.DataTree.from_dict({"/": xr.Dataset(attrs={"campaign": "old"}),
                                              "/maneuvers/doublet_col_1":
                                                  time_history("doublet_col_1", 7)}),
                       root / "existing.nc")
@@ -105,7 +105,7 @@ def check_time_history(ds):
     t = np.asarray(ds["time"].values, dtype=float)
     assert t.ndim == 1 and t.size >= 2 and np.all(np.isfinite(t))
     assert t[0] == 0.0 and np.all(np.diff(t) > 0)
-    io.validate_time_history(ds, required=list(ds.data_vars))
+    importers.validate_time_history(ds, required=list(ds.data_vars))
     for name, var in ds.data_vars.items():
         assert np.all(np.isfinite(var.values)), name
     for key, value in ds.attrs.items():
@@ -237,12 +237,12 @@ def test_fuzzed_csv_reads_cleanly(valid_files, data):
             path.write_text(content, encoding="utf-8")
         else:
             path.write_bytes(content)
-        ds = read_or_input_error(io.read_time_history, path)
+        ds = read_or_input_error(importers.read_time_history, path)
         event("read" if ds is not None else "InputDataError")
         if ds is not None:
             check_time_history(ds)
         mapped = read_or_input_error(
-            io.read_time_history, path,
+            importers.read_time_history, path,
             mapping={"time": "TIME", "lon": "DLON_PCT", "q": "Q_DEGS"},
             units={"q": "rad/s"})
         if mapped is not None:
@@ -271,8 +271,8 @@ def test_fuzzed_csv_import_leaves_no_partial_output(valid_files, data, existing)
         code, stderr = run_cli(["import", good, bad, "-o", out, "-q"])
         event(f"exit {code}")
         if code == 0:
-            tree = io.read_campaign(out)
-            names = io.list_maneuvers(tree)
+            tree = netcdf.read_campaign(out)
+            names = campaign.list_maneuvers(tree)
             assert "3211_lat_1" in names and len(names) == 2 + existing
             assert ("doublet_col_1" in names) == existing
             for name in names:
@@ -306,10 +306,10 @@ def test_malformed_csv_messages(tmp_path, text, expected):
     path = tmp_path / "x.csv"
     path.write_bytes(text.encode("latin-1") if "\xff" in text else text.encode())
     if expected is None:
-        check_time_history(io.read_time_history(path))
+        check_time_history(importers.read_time_history(path))
         return
     with pytest.raises(InputDataError, match=expected) as info:
-        io.read_time_history(path)
+        importers.read_time_history(path)
     assert str(path) in str(info.value) and "\n" not in str(info.value)
 
 
@@ -350,20 +350,20 @@ def test_corrupted_campaign_reads_cleanly(valid_files, data):
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "campaign.nc"
         path.write_bytes(content)
-        tree = read_or_input_error(io.read_campaign, path)
+        tree = read_or_input_error(netcdf.read_campaign, path)
         event("read" if tree is not None else "InputDataError")
         if tree is not None:
             check_campaign(tree)
-        ds = read_or_input_error(io.read_time_history, path)
+        ds = read_or_input_error(importers.read_time_history, path)
         if ds is not None:
             check_time_history(ds)
         # a group update of a corrupted file fails before writing, or rewrites it validly
         try:
-            io.update_campaign(path, "notes", xr.Dataset(attrs={"note": "x"}))
+            netcdf.update_campaign(path, "notes", xr.Dataset(attrs={"note": "x"}))
         except InputDataError:
             assert path.read_bytes() == content
         else:
-            check_campaign(io.read_campaign(path))
+            check_campaign(netcdf.read_campaign(path))
 
 
 @FEW
@@ -378,7 +378,7 @@ def test_frequency_response_cli_on_corrupted_campaign(valid_files, data):
                                 "--n-frequencies", "8", "--quiet"])
         event(f"exit {code}")
         if code == 0:
-            tree = io.read_campaign(path)
+            tree = netcdf.read_campaign(path)
             assert "frequency_response" in tree.children
         else:
             assert_clean_failure(code, stderr, path, content)
@@ -469,7 +469,7 @@ def _bad_time_histories():
 def test_malformed_netcdf_time_history(tmp_path, label, build):
     path = tmp_path / "sweep_lon_1.nc"
     build(path)
-    ds = read_or_input_error(io.read_time_history, path)
+    ds = read_or_input_error(importers.read_time_history, path)
     if ds is not None:  # e.g. a 2-D channel is skipped, the 1-D ones are read
         check_time_history(ds)
     # and through the CLI into a fresh and into an existing campaign
@@ -478,7 +478,7 @@ def test_malformed_netcdf_time_history(tmp_path, label, build):
     if code != 0:
         assert_clean_failure(code, stderr, out, None)
     existing = tmp_path / "existing.nc"
-    io.write_campaign(campaign_tree(), existing)
+    netcdf.write_campaign(campaign_tree(), existing)
     before = existing.read_bytes()
     code, stderr = run_cli(["import", path, "-o", existing, "-q"])
     if code != 0:
@@ -559,7 +559,7 @@ def _bad_campaigns():
                          ids=[label for label, _ in _bad_campaigns()])
 def test_frequency_response_cli_on_bad_campaign(tmp_path, label, build):
     path = tmp_path / "campaign.nc"
-    io.write_campaign(build(), path)
+    netcdf.write_campaign(build(), path)
     before = path.read_bytes()
     code, stderr = run_cli(["frequency-response", path, "--inputs", "lon,lat",
                             "--outputs", "p,q", "--maneuvers", "*", "--windows", "2,4",
@@ -567,7 +567,7 @@ def test_frequency_response_cli_on_bad_campaign(tmp_path, label, build):
     if label == "correlated_inputs":
         # not an error: the pair spectra are flagged collinear, H is NaN, file updated
         assert code == 0, stderr
-        fr = io.read_campaign(path)["frequency_response"].to_dataset()
+        fr = netcdf.read_campaign(path)["frequency_response"].to_dataset()
         assert bool(fr["collinear"].all()) and bool(fr["H"].isnull().all())
         return
     assert_clean_failure(code, stderr, path, before)
@@ -598,8 +598,8 @@ def test_sysid_attrs_types_roundtrip_under_fuzzed_values(tmp_path):
         note="comma, \"quotes\" and\nnewline", empty_list=[], nested={"a": [1, {"b": None}]},
         flag=True, nothing=None, z=1 + 2j, arr=np.arange(3.0), one=[1.5])
     path = tmp_path / "sweep_lon_1.csv"
-    io.write_csv(ds, path)
-    back = io.read_time_history(path)
+    importers.write_csv(ds, path)
+    back = importers.read_time_history(path)
     for key in ("note", "empty_list", "nested", "flag", "nothing", "z", "one"):
         assert back.attrs[key] == ds.attrs[key], key
     np.testing.assert_array_equal(back.attrs["arr"], ds.attrs["arr"])

@@ -135,7 +135,7 @@ def test_a_model_whose_fit_ran_away_is_reported_not_crashed_on(offset_records):
 
 
 def test_cli_identify_time_and_verify(tmp_path, capsys):
-    from sysid.data import io
+    from sysid.data import netcdf as io
     from sysid.cli import main
 
     path = tmp_path / "campaign.nc"
@@ -180,7 +180,7 @@ def test_cli_identify_time_and_verify(tmp_path, capsys):
 
 
 def test_cli_errors(tmp_path, capsys):
-    from sysid.data import io
+    from sysid.data import netcdf as io
     from sysid.cli import main
 
     path = tmp_path / "c.nc"
@@ -193,7 +193,7 @@ def test_cli_errors(tmp_path, capsys):
 
 
 def test_verification_group_round_trips_through_netcdf(tmp_path, truth_model, offset_records):
-    from sysid.data import io
+    from sysid.data import netcdf as io
 
     ds = verify(truth_model, offset_records[0])
     path = tmp_path / "v.nc"

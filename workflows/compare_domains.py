@@ -28,7 +28,7 @@ METHODS = ("frequency_domain", "time_domain")
 def comparison(tree: xr.DataTree, verification: str = "2311_*") -> dict:
     """The section's numbers from a finished study's campaign tree."""
     from sysid.assess.comparison import derivative_table, relative_error, sign_agreement
-    from sysid.data.io import list_maneuvers
+    from sysid.data.campaign import list_maneuvers
 
     models = {m: tree[f"models/{m}"].to_dataset() for m in METHODS
               if f"models/{m}" in _paths(tree)}

@@ -48,6 +48,7 @@ import xarray as xr
 from sysid.core.errors import IdentificationError, InputDataError
 from sysid.models import simulate
 from sysid.core.units import CHANNELS, channel_attrs
+from sysid.data.campaign import record_trim
 from sysid.assess.metrics import J_RMS_GUIDELINE, TIC_GUIDELINE, j_rms, theil_inequality
 
 __all__ = ["ESTIMATES", "verify", "verify_maneuvers", "merge_verifications",
@@ -55,16 +56,10 @@ __all__ = ["ESTIMATES", "verify", "verify_maneuvers", "merge_verifications",
 
 #: What :func:`verify` can estimate.
 ESTIMATES = ("bias", "reference_shift")
-#: First seconds averaged as trim for a channel without a ``trim_<channel>`` attribute.
-TRIM_WINDOW = 1.0
 
 
 def _trim(ds: xr.Dataset, channel: str) -> float:
-    key = f"trim_{channel}"
-    if key in ds.attrs:
-        return float(ds.attrs[key])
-    t = np.asarray(ds["time"].values, float)
-    return float(np.asarray(ds[channel].values, float)[t <= t[0] + TRIM_WINDOW].mean())
+    return record_trim(ds, channel)
 
 
 def _source_name(model: xr.Dataset, source: str | None) -> str:

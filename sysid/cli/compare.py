@@ -20,7 +20,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from sysid.assess.comparison import derivative_table, format_table, sign_agreement
     from sysid.core.errors import InputDataError
-    from sysid.data.io import read_campaign, update_campaign
+    from sysid.data.netcdf import read_campaign, update_campaign
     from sysid.core.util import atomic_path
 
     tree = read_campaign(args.campaign)

@@ -21,7 +21,7 @@ def _models(tree) -> dict[str, xr.Dataset]:
 
 def _cmd_export(args: argparse.Namespace) -> int:
     from sysid.fmi.export import export_fmu
-    from sysid.data.io import read_campaign
+    from sysid.data.netcdf import read_campaign
 
     models = _models(read_campaign(args.campaign))
     if args.model not in models:
@@ -89,7 +89,7 @@ def validate_model(name: str, model: xr.Dataset, *, fmu_dir: Path, truth=None, t
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
-    from sysid.data.io import read_campaign, update_campaign
+    from sysid.data.netcdf import read_campaign, update_campaign
     from sysid.assess.envelopes import MUAD
 
     tree = read_campaign(args.campaign)

@@ -89,7 +89,7 @@ def summary_lines(ds) -> list[str]:
 
 def run(args) -> int:
     from sysid.spectral.response import frequency_response
-    from sysid.data.io import read_campaign, update_campaign
+    from sysid.data.netcdf import read_campaign, update_campaign
     from sysid.spectral.spectra import DEFAULT_C_EPS
     from sysid.core.util import Progress
 

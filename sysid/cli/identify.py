@@ -56,7 +56,7 @@ def register(subparsers) -> None:
 
 def _trim(tree) -> dict[str, float]:
     """``channel -> trim`` from the frequency-response group, the root or a manoeuvre."""
-    from sysid.data.io import trim_from_attrs
+    from sysid.data.campaign import trim_from_attrs
 
     sources = [tree[g].attrs for g in ("frequency_response",) if g in tree] + [tree.attrs]
     if "maneuvers" in tree and tree["maneuvers"].children:
@@ -87,7 +87,7 @@ def _linearization(tree, states):
 def run(args: argparse.Namespace) -> int:
     # sysid.data.io is owned by another stage; imported lazily so the CLI loads without it.
     from sysid.identify.frequency_domain import identify_frequency_domain
-    from sysid.data.io import read_campaign, update_campaign
+    from sysid.data.netcdf import read_campaign, update_campaign
     from sysid.models import load_structure
     from sysid.core.util import Progress
 

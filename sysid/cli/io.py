@@ -9,7 +9,9 @@ from pathlib import Path
 import xarray as xr
 
 from sysid import __version__
-from sysid.data import io
+from sysid.data.campaign import list_maneuvers
+from sysid.data.importers import read_time_history, write_csv
+from sysid.data.netcdf import read_campaign, write_campaign
 from sysid.core.errors import InputDataError
 
 
@@ -45,13 +47,13 @@ def _import(args: argparse.Namespace) -> int:
     # Read everything first and write once: a bad file leaves no (or the old) output behind.
     datasets = {}
     for file in args.files:
-        ds = io.read_time_history(file, mapping=mapping, units=units, kind=args.kind,
+        ds = read_time_history(file, mapping=mapping, units=units, kind=args.kind,
                                   trim=trim)
         name = ds.attrs["maneuver"]
         if name in datasets:
             raise InputDataError(f"{file}: manoeuvre name {name!r} is used by two input files")
         datasets[name] = ds
-    tree = io.read_campaign(out) if out.exists() else xr.DataTree()
+    tree = read_campaign(out) if out.exists() else xr.DataTree()
     nodes = {node.path: node.to_dataset(inherit=False) for node in tree.subtree}
     root = nodes.get("/", xr.Dataset())
     root.attrs.setdefault("campaign", out.stem)
@@ -59,19 +61,19 @@ def _import(args: argparse.Namespace) -> int:
     nodes["/"] = root
     for name, ds in datasets.items():
         nodes[f"/maneuvers/{name}"] = ds
-    io.write_campaign(xr.DataTree.from_dict(nodes), out)
+    write_campaign(xr.DataTree.from_dict(nodes), out)
     if not args.quiet:
         print(f"{out}: imported {len(datasets)} manoeuvre(s): {', '.join(datasets)}")
     return 0
 
 
 def _export_csv(args: argparse.Namespace) -> int:
-    tree = io.read_campaign(args.campaign)
-    names = io.list_maneuvers(tree)
+    tree = read_campaign(args.campaign)
+    names = list_maneuvers(tree)
     if args.maneuver not in names:
         raise InputDataError(f"{args.campaign}: no manoeuvre {args.maneuver!r}; "
                              f"available: {names}")
-    io.write_csv(tree[f"maneuvers/{args.maneuver}"].to_dataset(), args.output)
+    write_csv(tree[f"maneuvers/{args.maneuver}"].to_dataset(), args.output)
     if not args.quiet:
         print(f"{args.output}: wrote {args.maneuver}")
     return 0

@@ -79,7 +79,7 @@ def register(subparsers) -> None:
 
 def _trim(records) -> dict[str, float]:
     """``channel -> trim`` from the first record that has ``trim_<channel>``."""
-    from sysid.data.io import trim_from_attrs
+    from sysid.data.campaign import trim_from_attrs
 
     return trim_from_attrs(records)
 
@@ -95,7 +95,7 @@ def _has(tree, path: str) -> bool:
 
 
 def _selected(tree, pattern: str, path: str):
-    from sysid.data.io import list_maneuvers, maneuvers
+    from sysid.data.campaign import list_maneuvers, maneuvers
 
     names = list_maneuvers(tree, pattern)
     if not names:
@@ -127,7 +127,7 @@ def _start(tree, structure, kind: str, path: str, progress):
 
 def run_identify(args: argparse.Namespace) -> int:
     from sysid.identify.time_domain import identify_time_domain
-    from sysid.data.io import read_campaign, update_campaign
+    from sysid.data.netcdf import read_campaign, update_campaign
     from sysid.models import load_structure
     from sysid.core.util import Progress
 
@@ -151,7 +151,7 @@ def run_identify(args: argparse.Namespace) -> int:
 
 
 def run_verify(args: argparse.Namespace) -> int:
-    from sysid.data.io import read_campaign, update_campaign
+    from sysid.data.netcdf import read_campaign, update_campaign
     from sysid.core.util import Progress
     from sysid.assess.verification import ESTIMATES, merge_verifications, verification_table, verify
 

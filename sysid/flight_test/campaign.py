@@ -520,7 +520,7 @@ def run_campaign(campaign: Campaign, output: str | Path | None = None, *, quiet:
     raised. (Appending each manoeuvre as it completed rewrote the whole file every time:
     about 40 % of a quick campaign's run time.)
     """
-    from sysid.data import io
+    from sysid.data import netcdf as io
 
     from sysid import truth
 
@@ -573,7 +573,7 @@ def cross_control_summary(tree: xr.DataTree, pattern: str = "sweep_*") -> xr.Dat
     :data:`CROSS_CONTROL_BAND` as ``mean_cross_coherence`` (axis, input, input_j); the
     guideline for well-conditioned MIMO identification is a mean below about 0.5.
     """
-    from sysid.data import io
+    from sysid.data import campaign as io
     from sysid.spectral.response import frequency_response
 
     names = io.list_maneuvers(tree, pattern)

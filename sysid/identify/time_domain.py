@@ -90,7 +90,8 @@ import xarray as xr
 
 from sysid.core.errors import IdentificationError, InputDataError
 from sysid.core.util import Progress
-from sysid.data.io import validate_time_history
+from sysid.data.campaign import TRIM_WINDOW, record_trim
+from sysid.data.importers import validate_time_history
 from sysid.identify.reduction import GUIDELINES, FitOutcome, ReductionResult, stepwise_reduction
 from sysid.identify.statistics import (FitResultParameters, ParameterStatistics,
                                       parameter_rows, parameter_statistics, perturbed_start)
@@ -121,8 +122,6 @@ EARLY_R_CHANGE = 0.02
 #: 1e-7 kept the loop going for ten outer iterations); 0.01 is 1/500 of the reduction's
 #: acceptance threshold MAX_COST_INCREASE, so no decision downstream can see it.
 COST_SETTLED = 0.01
-#: First seconds averaged as trim for a channel without a ``trim_<channel>`` attribute.
-TRIM_WINDOW = 1.0
 #: Simulated (whitened) values beyond this count as a diverged trial model.
 _HUGE = 1e100
 
@@ -161,17 +160,9 @@ class TimeRecord:
 
 
 def _trim_of(ds: xr.Dataset, channel: str) -> float:
-    """``trim_<channel>`` attribute, else the mean of the first :data:`TRIM_WINDOW` s."""
-    key = f"trim_{channel}"
-    if key in ds.attrs:
-        try:
-            return float(ds.attrs[key])
-        except (TypeError, ValueError):
-            raise InputDataError(f"manoeuvre {ds.attrs.get('maneuver', '?')!r}: attribute "
-                                 f"{key} = {ds.attrs[key]!r} is not a number") from None
-    t = np.asarray(ds["time"].values, float)
-    first = np.asarray(ds[channel].values, float)[t <= t[0] + TRIM_WINDOW]
-    return float(first.mean())
+    """``trim_<channel>`` attribute, else the mean of the first :data:`TRIM_WINDOW` s
+    (the data model's one rule, :func:`sysid.data.campaign.record_trim`)."""
+    return record_trim(ds, channel)
 
 
 def fitted_outputs(records: Sequence[xr.Dataset], structure: LinearStructure,

@@ -318,7 +318,7 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
 
     Dims ``model`` (method) and ``parameter``; see the module docstring for the variables.
     """
-    from sysid.data.io import read_campaign
+    from sysid.data.netcdf import read_campaign
 
     tree = read_campaign(Path(folder) / "campaign.nc")
     models = {}

@@ -91,14 +91,14 @@ def _key(*parts) -> str:
 def _group_key(path: Path, group: str) -> str | None:
     """The cache key stamped on ``group``; None when the file or the group is missing or the
     file is unreadable (the stage then runs and rewrites it)."""
-    from sysid.data.io import group_attrs
+    from sysid.data.netcdf import group_attrs
 
     attrs = group_attrs(path, group)
     return None if attrs is None else attrs.get("workflow_key")
 
 
 def _stamp(path: Path, group: str, key: str, elapsed_s: float) -> None:
-    from sysid.data.io import set_group_attrs
+    from sysid.data.netcdf import set_group_attrs
 
     set_group_attrs(path, group, {"workflow_key": key,
                                   "workflow_elapsed_s": round(float(elapsed_s), 2)})
@@ -196,7 +196,8 @@ class _Study:
     #      composite responses, and the unconditioned ones for comparison.
     def data(self) -> None:
         from sysid.spectral.response import siso_frequency_response
-        from sysid.data.io import maneuvers, read_campaign, update_campaign
+        from sysid.data.campaign import maneuvers
+        from sysid.data.netcdf import read_campaign, update_campaign
         from sysid.flight_test.campaign import run_campaign
         from sysid.core.units import CONTROLS, STATES_6DOF
 
@@ -235,7 +236,7 @@ class _Study:
 
     # 5-8. Verification, comparison, export and validation, report.
     def results(self) -> Path:
-        from sysid.data.io import read_campaign
+        from sysid.data.netcdf import read_campaign
         from sysid.report.html import write_report
 
         settings, path, out = self.settings, self.path, self.out
@@ -261,7 +262,8 @@ class _Study:
 
 
 def _first(path: Path, pattern: str) -> str:
-    from sysid.data.io import list_maneuvers, read_campaign
+    from sysid.data.campaign import list_maneuvers
+    from sysid.data.netcdf import read_campaign
 
     names = list_maneuvers(read_campaign(path), pattern)
     if not names:
@@ -271,6 +273,6 @@ def _first(path: Path, pattern: str) -> str:
 
 def study_tree(out_dir: str | Path) -> xr.DataTree:
     """The campaign DataTree a study wrote (for scripts and tests)."""
-    from sysid.data.io import read_campaign
+    from sysid.data.netcdf import read_campaign
 
     return read_campaign(Path(out_dir) / "campaign.nc")

@@ -45,6 +45,7 @@ import numpy as np
 import xarray as xr
 
 from sysid.core.errors import InputDataError
+from sysid.data.campaign import record_trim
 
 #: Default segment overlap (the paper raises it to 80 % to lower the random error).
 DEFAULT_OVERLAP = 0.8
@@ -123,7 +124,8 @@ def perturbations(records, channels: Sequence[str],
     -------
     list of xr.DataArray, one per record, dims ``(channel, time)``, float64, with attributes
     ``name`` and ``dt`` (s). Perturbations are taken about the record's ``trim_<channel>``
-    attribute when the Dataset has one for that channel, else about the record's mean.
+    attribute when the Dataset has one for that channel, else about the record's mean
+    (:func:`sysid.data.campaign.record_trim` with ``missing="record_mean"``).
 
     Raises
     ------
@@ -167,14 +169,7 @@ def perturbations(records, channels: Sequence[str],
                     f"first at t = {float(ds['time'][k]):.6g} s; expected finite values")
             if c in varies and np.ptp(x) > 1e-12 * max(1.0, float(np.max(np.abs(x)))):
                 varies[c] = True
-            trim = ds.attrs.get(f"trim_{c}")
-            try:
-                trim = None if trim is None else float(trim)
-            except (TypeError, ValueError):
-                raise InputDataError(f"record {name!r}: attribute trim_{c} = {trim!r}; expected "
-                                     "a number (the channel's trim value)") from None
-            ref = trim if trim is not None and np.isfinite(trim) else float(np.mean(x))
-            rows.append(x - ref)
+            rows.append(x - record_trim(ds, c, name=name, missing="record_mean"))
         out.append(xr.DataArray(
             np.vstack(rows), dims=("channel", "time"),
             coords={"channel": channels, "time": ds["time"].values},

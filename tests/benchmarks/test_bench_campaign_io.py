@@ -16,7 +16,7 @@ import time
 import numpy as np
 import xarray as xr
 
-from sysid.data import io
+from sysid.data import netcdf as io
 from sysid.core.units import channel_attrs
 
 CHANNELS = ("lon", "lat", "col", "ped", "u", "v", "w", "p", "q", "r", "phi", "theta", "psi")

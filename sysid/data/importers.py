@@ -1,0 +1,435 @@
+"""Time histories in and out: CSV and netCDF files of other tools, and their checks.
+
+:func:`read_time_history` reads one manoeuvre written by another tool (CSV with a header row,
+or a netCDF file of 1-D variables on ``time``), converts known channels to the analysis units
+of :data:`sysid.core.units.CHANNELS` and fills the attributes of ``docs/data_model.md``
+(trim of a channel not given: :func:`sysid.data.campaign.first_window_mean`, the data
+model's one rule). :func:`validate_time_history` is the check every stage applies to a record.
+
+CSV time histories (:func:`write_csv`, :func:`read_time_history`) have one header row naming
+the columns as ``name [unit]`` (``time [s],lon [%],q [deg/s]``) and one row per sample;
+:func:`write_csv` adds a first comment line ``# sysid-attrs: {...}`` with the dataset
+attributes as JSON (typed by the attribute rules of :mod:`sysid.data.netcdf`), which
+:func:`read_time_history` restores.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from sysid import __version__
+from sysid.core.errors import InputDataError
+from sysid.core.units import CHANNELS, CONTROLS, conversion_factor
+from sysid.core.util import atomic_path
+from sysid.data.campaign import first_window_mean
+from sysid.data.netcdf import decode_attrs, decode_complex, encode_attrs, json_default
+
+__all__ = ["TIME_RTOL", "KINDS", "validate_time_history", "write_csv", "read_time_history"]
+
+#: Relative tolerance on the sample interval of a "uniform" time grid.
+TIME_RTOL = 1e-6
+#: Manoeuvre kinds recognised from the first token of a manoeuvre name.
+KINDS = ("sweep", "3211", "2311", "doublet", "multisine")
+
+_CSV_ATTRS_PREFIX = "# sysid-attrs:"
+_NETCDF_MAGIC = (b"CDF\x01", b"CDF\x02", b"CDF\x05", b"\x89HDF\r\n\x1a\n")
+
+
+def _check_time_grid(t: np.ndarray, where: str, row_label=None, rtol: float = TIME_RTOL) -> float:
+    """Sample interval of a strictly increasing uniform grid; InputDataError otherwise.
+
+    ``row_label(i)`` describes sample ``i`` in messages (e.g. the line of a CSV file).
+    """
+    label = row_label or (lambda i: f"sample {i}")
+    if t.ndim != 1:
+        raise InputDataError(f"{where}: time must be one-dimensional, got shape {t.shape}")
+    if t.size < 2:
+        raise InputDataError(f"{where}: time has {t.size} sample(s); expected at least 2")
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise InputDataError(f"{where}: time is not finite at {label(bad[0])} ({t[bad[0]]})")
+    with np.errstate(over="ignore", invalid="ignore"):
+        steps = np.diff(t)
+        span = t[-1] - t[0]
+    if not np.isfinite(span):
+        raise InputDataError(f"{where}: time span {float(t[0])!r} .. {float(t[-1])!r} "
+                             "overflows; expected times in seconds of a manoeuvre")
+    back = np.flatnonzero(steps <= 0)
+    if back.size:
+        i = back[0] + 1
+        raise InputDataError(
+            f"{where}: time is not strictly increasing at {label(i)}: "
+            f"t = {float(t[i])!r} after {float(t[i - 1])!r}")
+    dt = (t[-1] - t[0]) / (t.size - 1)
+    off = np.flatnonzero(np.abs(steps - dt) > rtol * dt)
+    if off.size:
+        i = off[0] + 1
+        raise InputDataError(
+            f"{where}: time is not uniform at {label(i)}: step {float(steps[i - 1])!r} s, "
+            f"expected {float(dt)!r} s (relative tolerance {rtol:g}); resample the record "
+            "onto a uniform grid")
+    return float(dt)
+
+
+def validate_time_history(ds: xr.Dataset, required=(), name: str | None = None,
+                          rtol: float = TIME_RTOL) -> float:
+    """Check a time history and return its sample interval ``dt`` (s).
+
+    Checks that coordinate ``time`` exists, is strictly increasing and uniform (every step
+    within ``rtol * dt`` of ``dt``), that every channel in ``required`` is present and that
+    those channels are finite. Raises :class:`~sysid.core.errors.InputDataError` naming the
+    manoeuvre, the channel and the first offending sample and time.
+    """
+    where = name or ds.attrs.get("maneuver") or "time history"
+    where = f"manoeuvre {where!r}" if not str(where).startswith(("manoeuvre", "file")) else where
+    if "time" not in ds.coords and "time" not in ds.variables:
+        raise InputDataError(f"{where}: no 'time' coordinate; variables: {sorted(ds.variables)}")
+    t = np.asarray(ds["time"].values, dtype=float)
+    dt = _check_time_grid(t, where, rtol=rtol)
+    required = [required] if isinstance(required, str) else list(required)
+    missing = [c for c in required if c not in ds.data_vars]
+    if missing:
+        raise InputDataError(f"{where}: missing channel(s) {missing}; "
+                             f"available: {sorted(map(str, ds.data_vars))}")
+    for ch in required:
+        values = np.asarray(ds[ch].values)
+        if values.dtype.kind not in "biuf":
+            raise InputDataError(f"{where}: channel {ch!r} has dtype {values.dtype}; "
+                                 "expected numbers")
+        if values.dtype.kind == "f":
+            finite = np.isfinite(values)
+            if not finite.all():
+                axis = ds[ch].dims.index("time") if "time" in ds[ch].dims else None
+                bad_rows = (np.flatnonzero(~finite.all(axis=tuple(
+                    a for a in range(values.ndim) if a != axis))) if axis is not None
+                    else np.flatnonzero(~finite.ravel()))
+                i = int(bad_rows[0])
+                at = f"sample {i} (time {t[i]:g} s)" if axis is not None else f"element {i}"
+                raise InputDataError(
+                    f"{where}: channel {ch!r} is not finite (NaN or inf) at {at}; "
+                    "expected finite values")
+    return dt
+
+
+def _infer_kind_axis(name: str) -> tuple[str, str]:
+    """``("sweep", "lon")`` from ``sweep_lon_1``; ``("imported", "")`` when unrecognised."""
+    tokens = re.split(r"[_\-\s.]+", name.lower())
+    kind = tokens[0] if tokens and tokens[0] in KINDS else "imported"
+    axis = next((tok for tok in tokens[1:] if tok in CONTROLS), "")
+    return kind, axis
+
+
+def _format_header(name: str, unit: str | None) -> str:
+    return f"{name} [{unit}]" if unit else name
+
+
+def _parse_header(cell: str) -> tuple[str, str | None]:
+    """``("q", "deg/s")`` from ``q [deg/s]``; ``(name, None)`` without brackets."""
+    m = re.fullmatch(r"\s*(.*?)\s*\[\s*([^\]]*?)\s*\]\s*", cell)
+    if m and m.group(1):
+        return m.group(1), m.group(2) or None
+    return cell.strip(), None
+
+
+def write_csv(ds: xr.Dataset, path: str | os.PathLike) -> None:
+    """Write a time history as CSV (comma separated, ``.`` decimal point), atomically.
+
+    Columns: ``time [s]`` then every data variable on the ``time`` dimension alone, headed
+    ``name [units]``. Values are written with 17 significant digits so
+    :func:`read_time_history` gets the same floats back. The first line is a comment
+    ``# sysid-attrs: {...}`` holding the dataset attributes as JSON.
+    """
+    validate_time_history(ds)
+    names = [k for k, v in ds.data_vars.items() if v.dims == ("time",)
+             and v.dtype.kind in "biuf"]
+    header = [_format_header("time", ds["time"].attrs.get("units", "s"))]
+    header += [_format_header(str(k), ds[k].attrs.get("units")) for k in names]
+    for cell in header:
+        if "," in cell or "\n" in cell:
+            raise InputDataError(f"cannot write {path}: column {cell!r} contains a comma or "
+                                 "newline; expected plain channel names")
+    table = np.column_stack([np.asarray(ds["time"].values, dtype=float)]
+                            + [np.asarray(ds[k].values, dtype=float) for k in names])
+    try:
+        meta = json.dumps(encode_attrs(ds.attrs, f"CSV {path}"), default=json_default,
+                          sort_keys=True)
+    except (TypeError, ValueError) as exc:
+        raise InputDataError(f"cannot write {path}: dataset attributes are not JSON "
+                             f"serialisable ({exc})") from exc
+    with atomic_path(path, suffix=".csv") as tmp:
+        with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
+            fh.write(f"{_CSV_ATTRS_PREFIX} {meta}\n")
+            fh.write(",".join(header) + "\n")
+            np.savetxt(fh, table, delimiter=",", fmt="%.17g")
+
+
+def _is_netcdf(path: Path) -> bool:
+    with open(path, "rb") as fh:
+        head = fh.read(8)
+    return any(head.startswith(m) for m in _NETCDF_MAGIC)
+
+
+def _split(line: str, delimiter: str | None) -> list[str]:
+    return [c.strip() for c in (line.split() if delimiter is None else line.split(delimiter))]
+
+
+def _read_csv_table(path: Path):
+    """``(columns, units, rows, line_numbers, attrs)`` of a delimited text file.
+
+    ``columns`` are header names, ``units`` header units (or None), ``rows`` an
+    ``(n, ncol)`` float array, ``line_numbers`` the 1-based file line of each row.
+    """
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputDataError(f"file {path}: not a UTF-8 text file (byte {exc.start}); "
+                             "expected CSV with a header row, or netCDF") from exc
+    attrs = {}
+    lines = []
+    for number, line in enumerate(text.splitlines(), 1):
+        stripped = line.strip()
+        if stripped.startswith(_CSV_ATTRS_PREFIX):
+            try:
+                attrs = json.loads(stripped[len(_CSV_ATTRS_PREFIX):])
+                attrs = decode_attrs(attrs) if isinstance(attrs, dict) else attrs
+            except (ValueError, TypeError, KeyError, IndexError, AttributeError) as exc:
+                raise InputDataError(f"file {path}, line {number}: malformed sysid-attrs "
+                                     f"comment ({exc})") from exc
+            if not isinstance(attrs, dict):
+                raise InputDataError(f"file {path}, line {number}: sysid-attrs must be a "
+                                     "JSON object")
+        elif stripped and not stripped.startswith("#"):
+            lines.append((number, line))
+    if not lines:
+        raise InputDataError(f"file {path} is empty: expected a header row and data rows")
+    header_line, header = lines[0]
+    # Delimiter from the header: comma, then semicolon, then tab, else any whitespace.
+    delimiter = next((d for d in (",", ";", "\t") if d in header), None)
+    cells = _split(header, delimiter)
+    if len(cells) < 2:
+        raise InputDataError(
+            f"file {path}, line {header_line}: header {header.strip()!r} has a single column; "
+            "expected a header row of at least two columns (time and a channel) separated "
+            "by commas, semicolons or whitespace")
+    parsed = [_parse_header(c) for c in cells]
+    columns = [c for c, _ in parsed]
+    for i, col in enumerate(columns):
+        if not col:
+            raise InputDataError(f"file {path}, line {header_line}: column {i + 1} of the "
+                                 "header is empty; expected a column name")
+    dupes = sorted({c for c in columns if columns.count(c) > 1})
+    if dupes:
+        raise InputDataError(f"file {path}, line {header_line}: duplicate column(s) {dupes}")
+    if len(lines) < 2:
+        raise InputDataError(f"file {path} has a header but no data rows")
+    # Semicolon files often use a decimal comma (European spreadsheets).
+    decimal_comma = delimiter == ";"
+    rows = np.empty((len(lines) - 1, len(columns)))
+    numbers = np.empty(len(lines) - 1, dtype=int)
+    name_of = {",": "comma", ";": "semicolon", "\t": "tab", None: "whitespace"}[delimiter]
+    for k, (number, line) in enumerate(lines[1:]):
+        fields = _split(line, delimiter)
+        if len(fields) != len(columns):
+            raise InputDataError(
+                f"file {path}, line {number}: {len(fields)} field(s), expected {len(columns)} "
+                f"({name_of}-separated like the header); check the delimiter")
+        for j, cell in enumerate(fields):
+            text_value = cell.replace(",", ".") if decimal_comma else cell
+            try:
+                rows[k, j] = float(text_value)
+            except ValueError:
+                raise InputDataError(
+                    f"file {path}, line {number}, column {columns[j]!r}: {cell!r} is not a "
+                    "number") from None
+        numbers[k] = number
+    return columns, [u for _, u in parsed], rows, numbers, attrs
+
+
+def _read_netcdf_table(path: Path):
+    """The same as :func:`_read_csv_table` for a netCDF file of 1-D variables."""
+    try:
+        ds = xr.load_dataset(path, decode_times=False, decode_timedelta=False)
+    except Exception as exc:  # netCDF/HDF5 raise many types for broken files
+        raise InputDataError(f"cannot read netCDF file {path} ({type(exc).__name__}: {exc})"
+                             ) from exc
+    try:
+        ds = decode_complex(ds)
+    except (ValueError, TypeError, KeyError, IndexError, AttributeError) as exc:
+        # e.g. a corrupted sysid_attr_types JSON or a sysid_complex flag on a real variable
+        raise InputDataError(f"file {path}: malformed sysid attributes "
+                             f"({type(exc).__name__}: {exc})") from exc
+    time_dim = next((d for d in ds.dims if str(d).lower() in ("time", "t")), None)
+    if time_dim is None:
+        raise InputDataError(f"file {path}: no 'time' dimension; dimensions: {list(ds.dims)}")
+    names = [str(time_dim)] + [str(k) for k, v in ds.data_vars.items()
+                               if v.dims == (time_dim,) and v.dtype.kind in "biuf"]
+    if str(time_dim) not in ds.variables:
+        raise InputDataError(f"file {path}: dimension {time_dim!r} has no coordinate values")
+    if ds[time_dim].dtype.kind not in "biuf":
+        raise InputDataError(f"file {path}: coordinate {time_dim!r} has dtype "
+                             f"{ds[time_dim].dtype}; expected numbers (seconds)")
+    rows = np.column_stack([np.asarray(ds[n].values, dtype=float) for n in names])
+    units = [ds[n].attrs.get("units") for n in names]
+    return names, units, rows, np.arange(rows.shape[0]), dict(ds.attrs)
+
+
+def read_time_history(path: str | os.PathLike, mapping: Mapping[str, str] | None = None,
+                      units: Mapping[str, str] | None = None, kind: str | None = None,
+                      name: str | None = None, trim: Mapping[str, float] | None = None,
+                      rtol: float = TIME_RTOL) -> xr.Dataset:
+    """Read one manoeuvre from a CSV or netCDF file written by another tool.
+
+    Parameters
+    ----------
+    path
+        Delimited text with one header row (comma, semicolon -- with decimal comma allowed --,
+        tab or whitespace; ``#`` lines are comments) or a netCDF file whose variables lie
+        on a ``time`` dimension. Header cells may carry units as ``q [deg/s]``.
+    mapping
+        ``{sysid channel: file column}``, e.g. ``{"lon": "DLON_PCT", "q": "Q_DEGS"}``. With a
+        mapping only the mapped columns (and time) are read; ``"time"`` may be mapped too.
+        Without one every column is read under its own name. The time column is otherwise
+        the one named ``time`` or ``t`` (any case).
+    units
+        ``{sysid channel: unit in the file}``. Known channels are converted to the analysis
+        unit of :data:`sysid.core.units.CHANNELS`. Overrides a unit given in the header.
+    kind, name
+        Manoeuvre kind and name. ``name`` defaults to the file stem; ``kind`` to the first
+        token of the name when it is one of ``sweep 3211 2311 doublet multisine``, else
+        ``"imported"``. The excited ``axis`` is the first control name among the tokens.
+    trim
+        ``{channel: trim value}`` in analysis units (any sysid channel, read or not);
+        channels read but not given get the mean of the first :data:`sysid.data.campaign.TRIM_WINDOW` (1 s) of
+        data, as the data model prescribes for imported data.
+
+    Returns
+    -------
+    xr.Dataset
+        Time history on ``time`` (s, shifted to start at 0; the original start is in attr
+        ``time_offset``), attributes per ``docs/data_model.md`` (``seed = -1``: not generated
+        by sysid). Any malformed file raises :class:`~sysid.core.errors.InputDataError`.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputDataError(f"file {path} does not exist")
+    try:
+        netcdf = _is_netcdf(path)
+    except OSError as exc:
+        raise InputDataError(f"cannot open {path}: {exc}") from exc
+    columns, file_units, rows, lines, file_attrs = (
+        _read_netcdf_table(path) if netcdf else _read_csv_table(path))
+    label = (lambda i: f"sample {i}") if netcdf else (lambda i: f"line {lines[i]}")
+
+    mapping = dict(mapping or {})
+    time_col = mapping.pop("time", None) or next(
+        (c for c in columns if c.lower() in ("time", "t")), None)
+    if time_col is None or time_col not in columns:
+        raise InputDataError(
+            f"file {path}: no time column {time_col or 'time'!r}; columns: {columns}; "
+            "name it 'time' or map it with mapping={'time': COLUMN}")
+    if not mapping:
+        mapping = {c: c for c in columns if c != time_col}
+    missing = {ch: col for ch, col in mapping.items() if col not in columns}
+    if missing:
+        raise InputDataError(
+            f"file {path}: column(s) {sorted(missing.values())} not found (asked for by "
+            f"mapping {missing}); columns in the file: {columns}")
+
+    index = {c: j for j, c in enumerate(columns)}
+    t = rows[:, index[time_col]]
+    where = f"file {path}, column {time_col!r}"
+    time_unit = (units or {}).get("time") or file_units[index[time_col]] or "s"
+    # CF-style "seconds" / "seconds since <epoch>": the origin is dropped below anyway.
+    if re.fullmatch(r"(s|sec|secs|second|seconds)(\s+since\s.*)?", time_unit.strip(), re.I):
+        time_unit = "s"
+    try:
+        with np.errstate(over="ignore"):
+            t = t * conversion_factor(time_unit, "s")
+    except ValueError as exc:
+        raise InputDataError(f"{where}: {exc}") from exc
+    _check_time_grid(t, where, label, rtol=rtol)
+
+    data_vars = {}
+    for ch, col in mapping.items():
+        values = rows[:, index[col]]
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            raise InputDataError(f"file {path}, {label(bad[0])}, column {col!r}: value "
+                                 f"{values[bad[0]]} is not finite; expected a number")
+        file_unit = (units or {}).get(ch) or file_units[index[col]]
+        if ch in CHANNELS:
+            target = CHANNELS[ch].unit
+            try:
+                factor = conversion_factor(file_unit, target) if file_unit else 1.0
+            except ValueError as exc:
+                raise InputDataError(f"file {path}, column {col!r} (channel {ch!r}): "
+                                     f"{exc}") from exc
+            attrs = {"units": target, "long_name": CHANNELS[ch].long_name}
+            with np.errstate(over="ignore"):
+                values = values * factor
+            bad = np.flatnonzero(~np.isfinite(values))
+            if bad.size:
+                raise InputDataError(
+                    f"file {path}, {label(bad[0])}, column {col!r}: value "
+                    f"{rows[bad[0], index[col]]!r} {file_unit} overflows when converted to "
+                    f"{target}; expected a finite number")
+        else:
+            attrs = {"units": file_unit or "1", "long_name": str(col)}
+        if col != ch:
+            attrs["source_column"] = str(col)
+        var_name = ch if ch in CHANNELS else re.sub(r"[^A-Za-z0-9_.@+\-]", "_", ch)
+        data_vars[var_name] = ("time", values, attrs)
+
+    name = name or file_attrs.get("maneuver") or path.stem
+    if not isinstance(name, str) or not name.strip() or "/" in name or name in (".", ".."):
+        raise InputDataError(f"file {path}: manoeuvre name {name!r} is not usable as a group "
+                             "name; expected a non-empty string without '/' (pass name=...)")
+    guess_kind, guess_axis = _infer_kind_axis(name)
+    attrs = {k: v for k, v in file_attrs.items() if not str(k).startswith("_")}
+    attrs.update({
+        "maneuver": name,
+        "kind": kind or file_attrs.get("kind") or guess_kind,
+        "axis": file_attrs.get("axis", guess_axis),
+        "flight_condition": file_attrs.get("flight_condition", ""),
+        "fmu_name": file_attrs.get("fmu_name", ""),
+        "fmu_guid": file_attrs.get("fmu_guid", ""),
+        "seed": file_attrs.get("seed", -1),
+        "sysid_version": file_attrs.get("sysid_version", __version__),
+        "source_file": str(path),
+        "time_offset": float(t[0]),
+    })
+    time = (t - t[0])
+    trim = dict(trim or {})
+    unknown = sorted(set(trim) - set(data_vars) - set(CHANNELS))
+    if unknown:
+        raise InputDataError(f"file {path}: trim given for unknown channel(s) {unknown}; "
+                             f"expected channels read ({sorted(data_vars)}) or sysid channels "
+                             f"({sorted(CHANNELS)})")
+    for key in [k for k in attrs if str(k).startswith("trim_")]:
+        value = attrs[key]
+        if value is None or (isinstance(value, float) and np.isnan(value)):
+            del attrs[key]  # not given: computed from the data below
+        elif (isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number))
+              or not np.isfinite(value)):
+            raise InputDataError(f"file {path}: attribute {key} = {value!r}; expected a finite "
+                                 "number (trim value in analysis units)")
+    for var_name, value in trim.items():
+        attrs[f"trim_{var_name}"] = float(value)
+    for var_name, (_, values, _) in data_vars.items():
+        key = f"trim_{var_name}"
+        if var_name in trim:
+            attrs[key] = float(trim[var_name])
+        elif key not in attrs:
+            attrs[key] = first_window_mean(time, values)
+    return xr.Dataset(data_vars, coords={"time": ("time", time, {"units": "s",
+                                                                  "long_name": "time"})},
+                      attrs=attrs)
+
+
