@@ -137,7 +137,7 @@ def test_fmu_state_get_set_and_serialisation(truth_fmu, hover_trim):
         sim.set_state(snap)
         b = [sim.step(controls) for _ in range(50)]
         np.testing.assert_array_equal(a, b)
-        fmu = sim._inst._fmu
+        fmu = sim._inst.fmu
         blob = fmu.serializeFMUstate(snap[0])
         restored = fmu.deSerializeFMUstate(blob)
         sim.set_state((restored, snap[1]))
@@ -155,7 +155,7 @@ def test_rk4_lands_on_communication_points(truth_fmu, hover_trim):
         sim.reset(hover_trim)
         c = sim.trim_controls + np.array([3.0, 0, 0, 0])
         y1 = sim.step(c, dt=0.0123)
-        assert sim._inst._fmu.getRealStatus(2) == pytest.approx(0.0123, abs=1e-15)
+        assert sim._inst.fmu.getRealStatus(2) == pytest.approx(0.0123, abs=1e-15)
         sim.reset(hover_trim)
         for _ in range(3):
             y2 = sim.step(c, dt=0.0041)

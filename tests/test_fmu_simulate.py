@@ -184,6 +184,34 @@ def test_divergence_raises_simulation_diverged(hover_trim):
     assert info.value.maneuver == "runaway"
 
 
+def test_non_finite_state_is_reported_as_a_discarded_step(hover_trim):
+    """RK4 with 0.5 s sub-steps is unstable on the rotor's fast modes (time constants of a
+    few hundredths of a second), so the states overflow within seconds. The FMU returns
+    fmi2Discard with the last successful time (FMI 2.0), and CoSimulation raises
+    SimulationDiverged from that status, naming the time and the manoeuvre."""
+    from sysid.fmi.runtime import DISCARD
+    from sysid.truth import CoSimulation, Instance, load_fmu
+
+    with CoSimulation(name="coarse", step_size=0.5, envelope={}) as sim:
+        sim.reset(hover_trim)
+        with pytest.raises(SimulationDiverged, match="non-finite") as info:
+            for _ in range(200):
+                sim.step(sim.trim_controls, dt=0.5)
+    assert info.value.maneuver == "coarse"
+    assert 0.0 < info.value.time < 100.0 and f"t = {info.value.time:.2f} s" in str(info.value)
+
+    model = load_fmu()
+    with Instance(model, "cs", {"h_rk4": 0.5}) as inst:
+        inst.initialize(hover_trim.start_values())
+        do_step, t, status = inst.functions["fmi2DoStep"], 0.0, 0
+        while status == 0 and t < 100.0:
+            status = do_step(inst.component, t, 0.5, 1)
+            t += 0.5
+        assert status == DISCARD
+        reached = inst.last_successful_time()
+        assert 0.0 < reached < t and reached == pytest.approx(t - 0.5)
+
+
 def test_gusts_act_in_body_axes(hover_trim):
     """A 10 ft/s headwind gust (u_gust = -10 ft/s: air moving aft) reads as airspeed and
     blows the rotor back: nose-up pitch rate."""

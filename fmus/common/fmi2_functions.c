@@ -31,7 +31,7 @@ void fmu_log(const ModelInstance *comp, fmi2Status status, const char *category,
     va_list args;
     size_t i, j;
     if (!comp || !comp->callbacks.logger) return;
-    if (!comp->loggingOn && status != fmi2Error && status != fmi2Fatal) return;
+    if (!comp->loggingOn && status <= fmi2Warning) return;
     va_start(args, format);
     vsnprintf(message, sizeof message, format, args);
     va_end(args);
@@ -122,6 +122,7 @@ fmi2Status fmu_integrate_rk4(ModelInstance *comp, double h, double h_max) {
         return fmi2Error;
     }
     while (t < t_end) {
+        const double t_ok = t;
         /* Shorten the last sub-step so that the step lands exactly on the communication
          * point; a remainder below 1e-9 of a step is merged into the previous sub-step. */
         double dt = t_end - t;
@@ -137,10 +138,12 @@ fmi2Status fmu_integrate_rk4(ModelInstance *comp, double h, double h_max) {
             x[i] += dt / 6.0 * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i]);
         t = (dt == t_end - t) ? t_end : t + dt;
         if (!all_finite(x, N_STATES)) {
-            comp->s.time = t;
-            fmu_log(comp, fmi2Error, "logError",
+            /* FMI 2.0 fmi2Discard: the step was computed only up to t_ok, which
+             * fmi2GetRealStatus(fmi2LastSuccessfulTime) reports. */
+            comp->s.time = t_ok;
+            fmu_log(comp, fmi2Discard, "logStatusDiscard",
                     "state became non-finite at t = %.6g s (simulation diverged)", t);
-            return fmi2Error;
+            return fmi2Discard;
         }
     }
     comp->s.time = t_end;
@@ -689,6 +692,11 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
         return fail(comp);
     }
     status = model_do_step(comp, communicationStepSize);
+    if (status == fmi2Discard) {
+        /* diverged: values and fmi2GetRealStatus stay readable, stepping on does not */
+        comp->s.phase = PHASE_ERROR;
+        return fmi2Discard;
+    }
     if (status > fmi2Warning) return fail(comp);
     comp->s.dirty = 1;
     return status;

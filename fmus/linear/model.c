@@ -468,9 +468,10 @@ fmi2Status model_do_step(ModelInstance *comp, double h) {
     }
     for (i = 0; i < N_X; i++) {
         if (!isfinite(x_new[i])) {
-            fmu_log(comp, fmi2Error, "logError",
+            /* fmi2Discard (FMI 2.0): nothing of this step was computed; time stays */
+            fmu_log(comp, fmi2Discard, "logStatusDiscard",
                     "state became non-finite at t = %.6g s (unstable model?)", comp->s.time + h);
-            return fmi2Error;
+            return fmi2Discard;
         }
         x[i] = x_new[i];
     }

@@ -18,15 +18,29 @@ import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
+from xml.etree import ElementTree
 
 import numpy as np
 
 from sysid.core.paths import cache_dir
 from sysid.core.errors import FMUError, InputDataError
 
-_c_double_p = ctypes.POINTER(ctypes.c_double)
-_c_uint_p = ctypes.POINTER(ctypes.c_uint)
-_STATUS = ("OK", "warning", "discard", "error", "fatal", "pending")
+# fmpy is imported inside the functions that load or run an FMU: it loads native helper
+# libraries (0.14 s), which the modules that only read results never need.
+
+#: ctypes pointer types of the FMI value arrays (for callers of :attr:`Instance.functions`).
+c_double_p = ctypes.POINTER(ctypes.c_double)
+c_uint_p = ctypes.POINTER(ctypes.c_uint)
+#: fmi2Status names by value (FMI 2.0: fmi2OK = 0 ... fmi2Pending = 5).
+STATUS = ("OK", "warning", "discard", "error", "fatal", "pending")
+#: fmi2Warning: the largest status that is not a failure.
+WARNING = 1
+#: fmi2Discard: the FMU could not complete the call (a step computed only up to
+#: fmi2LastSuccessfulTime, a state outside its domain); our FMUs return it when the
+#: simulation diverges, so it maps to SimulationDiverged.
+DISCARD = 2
+#: fmi2StatusKind fmi2LastSuccessfulTime (for fmi2GetRealStatus).
+LAST_SUCCESSFUL_TIME = 2
 
 
 @dataclass
@@ -172,9 +186,7 @@ def inspect_archive(path: str | os.PathLike, *, interfaces=("coSimulation", "mod
     Returns ``{"fmi_version", "guid", "model_name", "identifiers": {interface: identifier},
     "members": [names]}``.
     """
-    from xml.etree import ElementTree
-
-    from fmpy import platform, sharedLibraryExtension
+    from fmpy import platform, sharedLibraryExtension  # deferred: see the module imports
 
     path = Path(path)
     where = f"FMU {path}"
@@ -298,20 +310,16 @@ def _extract(path: Path) -> Path:
 _LOADED: dict[tuple[str, float], FMUModel] = {}
 
 
-def load_fmu(path: str | os.PathLike | None = None) -> FMUModel:
-    """Load an FMU (default: the truth helicopter, built on first use).
+def load_fmu(path: str | os.PathLike) -> FMUModel:
+    """Load an FMU (:func:`sysid.truth.load_fmu` defaults to the truth helicopter).
 
     The archive is checked by :func:`inspect_archive` before fmpy reads it or anything is
     extracted. Raises :class:`~sysid.core.errors.FMUError` with a one-line message naming the file
     if it is missing, not an FMU archive, hostile (path traversal, symlinks, zip bomb), not
     FMI 2.0 with both interfaces, or lacks a binary for this platform.
     """
-    from fmpy import platform, read_model_description
+    from fmpy import platform, read_model_description, sharedLibraryExtension  # deferred: fmpy
 
-    if path is None:
-        from sysid.fmi.build import build_fmu
-
-        path = build_fmu()
     path = Path(path)
     if not path.is_file():
         raise FMUError(f"FMU file {path} does not exist")
@@ -334,8 +342,6 @@ def load_fmu(path: str | os.PathLike | None = None) -> FMUModel:
     except (zipfile.BadZipFile, OSError) as exc:
         raise FMUError(f"{path} is not a valid FMU: cannot extract it ({exc})") from None
     identifier = description.coSimulation.modelIdentifier
-    from fmpy import sharedLibraryExtension
-
     library = unzip_dir / "binaries" / platform / f"{identifier}{sharedLibraryExtension}"
     if not library.is_file():
         raise FMUError(f"{path} has no binary for platform {platform} "
@@ -350,15 +356,16 @@ class _Logger:
     """Collects the FMU's log messages so that errors can be reported in one line."""
 
     def __init__(self):
-        from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+        from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE,  # deferred: fmpy
+                               fmi2CallbackFreeMemoryTYPE,
                                fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
-        from fmpy.fmi1 import calloc, free
+        from fmpy.fmi1 import calloc, free  # deferred: fmpy
 
         self.messages: list[str] = []
 
         def log(env, instance, status, category, message):
             text = message.decode("utf-8", "replace") if message else ""
-            if status >= 3:
+            if status > WARNING:
                 self.messages.append(text)
 
         self.callbacks = fmi2CallbackFunctions()
@@ -408,7 +415,7 @@ class Instance(ReleasedOnExit):
 
     def __init__(self, model: FMUModel, kind: str, parameters: dict | None = None,
                  name: str = "sysid"):
-        from fmpy.fmi2 import FMU2Model, FMU2Slave
+        from fmpy.fmi2 import FMU2Model, FMU2Slave  # deferred: fmpy
 
         if kind not in ("me", "cs"):
             raise ValueError(f"kind must be 'me' or 'cs', got {kind!r}")
@@ -418,27 +425,32 @@ class Instance(ReleasedOnExit):
         self._logger = _Logger()
         cls = FMU2Model if kind == "me" else FMU2Slave
         try:
-            self._fmu = cls(guid=model.guid, unzipDirectory=str(model.unzip_dir),
-                            modelIdentifier=model.identifier, instanceName=name)
-            self._fmu.instantiate(callbacks=self._logger.callbacks)
+            #: the fmpy FMU2Model / FMU2Slave object (its public methods)
+            self.fmu = cls(guid=model.guid, unzipDirectory=str(model.unzip_dir),
+                           modelIdentifier=model.identifier, instanceName=name)
+            self.fmu.instantiate(callbacks=self._logger.callbacks)
         except Exception as exc:
             raise FMUError(f"cannot instantiate {model.path.name}: "
                            f"{self._logger.last(str(exc).splitlines()[0])}") from None
-        dll = self._fmu.dll
-        self._c = self._fmu.component
-        self._raw = {}
+        dll = self.fmu.dll
+        #: the fmi2Component handle, first argument of every function in :attr:`functions`
+        self.component = self.fmu.component
+        #: Raw FMI functions for hot loops (they return the fmi2Status; check it with
+        #: :meth:`check`): fmi2SetReal, fmi2GetReal, fmi2DoStep, fmi2SetContinuousStates,
+        #: fmi2GetDerivatives, fmi2SetTime.
+        self.functions = {}
         for fname, args in {
-            "fmi2SetReal": [ctypes.c_void_p, _c_uint_p, ctypes.c_size_t, _c_double_p],
-            "fmi2GetReal": [ctypes.c_void_p, _c_uint_p, ctypes.c_size_t, _c_double_p],
+            "fmi2SetReal": [ctypes.c_void_p, c_uint_p, ctypes.c_size_t, c_double_p],
+            "fmi2GetReal": [ctypes.c_void_p, c_uint_p, ctypes.c_size_t, c_double_p],
             "fmi2DoStep": [ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int],
-            "fmi2SetContinuousStates": [ctypes.c_void_p, _c_double_p, ctypes.c_size_t],
-            "fmi2GetDerivatives": [ctypes.c_void_p, _c_double_p, ctypes.c_size_t],
+            "fmi2SetContinuousStates": [ctypes.c_void_p, c_double_p, ctypes.c_size_t],
+            "fmi2GetDerivatives": [ctypes.c_void_p, c_double_p, ctypes.c_size_t],
             "fmi2SetTime": [ctypes.c_void_p, ctypes.c_double],
         }.items():
             func = dll[fname]  # a fresh function object: fmpy's own stays untouched
             func.argtypes = args
             func.restype = ctypes.c_int
-            self._raw[fname] = func
+            self.functions[fname] = func
         self.time = 0.0
         self._initialised = False
         self._closed = False
@@ -447,13 +459,29 @@ class Instance(ReleasedOnExit):
 
     def check(self, status: int, what: str) -> None:
         """Raise :class:`FMUError` with the FMU's last message if ``status`` > warning."""
-        if status > 1:
-            label = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
-            raise FMUError(f"{what} failed ({label}): {self._logger.last('no message')}")
+        if status > WARNING:
+            label = STATUS[status] if 0 <= status < len(STATUS) else str(status)
+            raise FMUError(f"{what} failed ({label}): {self.last_message('no message')}")
 
-    def _call(self, method: str, *args, what: str | None = None):
+    def last_message(self, default: str = "") -> str:
+        """The last message the FMU logged with a status above warning."""
+        return self._logger.last(default)
+
+    def last_successful_time(self) -> float | None:
+        """fmi2GetRealStatus(fmi2LastSuccessfulTime) after a discarded step (co-simulation),
+        s; None where the FMU cannot say."""
+        if self.kind != "cs":
+            return None
         try:
-            return getattr(self._fmu, method)(*args)
+            return float(self.fmu.getRealStatus(LAST_SUCCESSFUL_TIME))
+        except Exception:  # the FMU does not provide the status (fmi2Discard/Error)
+            return None
+
+    def call(self, method: str, *args, what: str | None = None):
+        """Call a method of :attr:`fmu` (fmpy); an FMI failure becomes :class:`FMUError`
+        with the FMU's last message."""
+        try:
+            return getattr(self.fmu, method)(*args)
         except Exception as exc:
             if isinstance(exc, FMUError):
                 raise
@@ -462,14 +490,14 @@ class Instance(ReleasedOnExit):
 
     def set_real(self, vrs: np.ndarray, values: np.ndarray) -> None:
         values = np.ascontiguousarray(values, dtype=np.float64)
-        status = self._raw["fmi2SetReal"](self._c, vrs.ctypes.data_as(_c_uint_p), len(vrs),
-                                          values.ctypes.data_as(_c_double_p))
+        status = self.functions["fmi2SetReal"](self.component, vrs.ctypes.data_as(c_uint_p), len(vrs),
+                                          values.ctypes.data_as(c_double_p))
         self.check(status, "fmi2SetReal")
 
     def get_real(self, vrs: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         out = np.empty(len(vrs)) if out is None else out
-        status = self._raw["fmi2GetReal"](self._c, vrs.ctypes.data_as(_c_uint_p), len(vrs),
-                                          out.ctypes.data_as(_c_double_p))
+        status = self.functions["fmi2GetReal"](self.component, vrs.ctypes.data_as(c_uint_p), len(vrs),
+                                          out.ctypes.data_as(c_double_p))
         self.check(status, "fmi2GetReal")
         return out
 
@@ -490,20 +518,20 @@ class Instance(ReleasedOnExit):
 
         For model exchange the instance ends in continuous-time mode.
         """
-        self._call("setupExperiment", None, start_time)
+        self.call("setupExperiment", None, start_time)
         self.set_values(self.parameters)
         self.set_values(start_values or {})
-        self._call("enterInitializationMode")
-        self._call("exitInitializationMode", what="initialisation")
+        self.call("enterInitializationMode")
+        self.call("exitInitializationMode", what="initialisation")
         if self.kind == "me":
-            while self._call("newDiscreteStates")[0]:
+            while self.call("newDiscreteStates")[0]:
                 pass
-            self._call("enterContinuousTimeMode")
+            self.call("enterContinuousTimeMode")
         self.time = start_time
         self._initialised = True
 
     def reset(self) -> None:
-        self._call("reset")
+        self.call("reset")
         self._initialised = False
 
     def close(self) -> None:
@@ -512,11 +540,11 @@ class Instance(ReleasedOnExit):
         self._closed = True
         try:
             if self._initialised:
-                self._fmu.terminate()
+                self.fmu.terminate()
         except Exception:
             pass
         try:
-            self._fmu.freeInstance()
+            self.fmu.freeInstance()
         except Exception:
             pass
 
@@ -544,7 +572,7 @@ class DerivativeFunction:
         self._input_vrs = model.vrs(self.input_names)
         self._n = len(self.state_names)
         self._dx = np.empty(self._n)
-        self._dx_p = self._dx.ctypes.data_as(_c_double_p)
+        self._dx_p = self._dx.ctypes.data_as(c_double_p)
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """State derivatives (SI) for states ``x`` (SI, shape (n_states,)) and inputs ``u``."""
@@ -553,9 +581,9 @@ class DerivativeFunction:
             raise ValueError(f"x must have shape ({self._n},), got {x.shape}")
         inst = self._inst
         inst.set_real(self._input_vrs, u)
-        inst.check(inst._raw["fmi2SetContinuousStates"](inst._c, x.ctypes.data_as(_c_double_p),
-                                                          self._n), "fmi2SetContinuousStates")
-        inst.check(inst._raw["fmi2GetDerivatives"](inst._c, self._dx_p, self._n),
+        inst.check(inst.functions["fmi2SetContinuousStates"](
+            inst.component, x.ctypes.data_as(c_double_p), self._n), "fmi2SetContinuousStates")
+        inst.check(inst.functions["fmi2GetDerivatives"](inst.component, self._dx_p, self._n),
                    "fmi2GetDerivatives")
         return self._dx.copy()
 

@@ -21,8 +21,9 @@ units the FMU declares.
 """
 
 from sysid.fmi.build import build_fmu, build_model_fmu, read_model
-from sysid.fmi.runtime import DerivativeFunction, FMUModel, Instance, load_fmu
+from sysid.fmi.runtime import DerivativeFunction, FMUModel, Instance
 from sysid.truth.cosim import (DEFAULT_ENVELOPE, DEFAULT_OUTPUTS, MEASUREMENTS, CoSimulation)
+from sysid.truth.fmu import load_fmu
 from sysid.truth.linearize import Linearization, jacobians_si, linearize, residualize
 from sysid.truth.simulate import simulate
 from sysid.truth.trim import TrimResult, trim

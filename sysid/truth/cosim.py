@@ -29,11 +29,12 @@ from __future__ import annotations
 import numpy as np
 
 from sysid.core.errors import FMUError, InputDataError, SimulationDiverged
-from sysid.fmi.runtime import (FMUModel, Instance, ReleasedOnExit, _c_double_p, _c_uint_p,
-                                load_fmu)
+from sysid.core.units import CONTROLS, conversion_factor
+from sysid.fmi.runtime import (DISCARD, WARNING, FMUModel, Instance, ReleasedOnExit,
+                               c_double_p, c_uint_p)
+from sysid.truth.fmu import load_fmu
 from sysid.truth.linearize import analysis_unit, si_to_analysis
 from sysid.truth.trim import TrimResult
-from sysid.core.units import CONTROLS, conversion_factor
 
 #: Measurement channels of a time history (docs/data_model.md), in order.
 MEASUREMENTS = ("u", "v", "w", "p", "q", "r", "phi", "theta", "psi", "ax", "ay", "az")
@@ -96,10 +97,10 @@ class CoSimulation(ReleasedOnExit):
         self._vr_out = self.model.vrs(self.output_names)
         self._in = np.zeros(len(self._vr_in))
         self._out = np.empty(len(self._vr_out))
-        self._vr_in_p = self._vr_in.ctypes.data_as(_c_uint_p)
-        self._vr_out_p = self._vr_out.ctypes.data_as(_c_uint_p)
-        self._in_p = self._in.ctypes.data_as(_c_double_p)
-        self._out_p = self._out.ctypes.data_as(_c_double_p)
+        self._vr_in_p = self._vr_in.ctypes.data_as(c_uint_p)
+        self._vr_out_p = self._vr_out.ctypes.data_as(c_uint_p)
+        self._in_p = self._in.ctypes.data_as(c_double_p)
+        self._out_p = self._out.ctypes.data_as(c_double_p)
         self.time = 0.0
         #: Trim controls of the last :meth:`reset`, % (lon lat col ped).
         self.trim_controls = np.full(4, np.nan)
@@ -122,10 +123,10 @@ class CoSimulation(ReleasedOnExit):
             if self._inst is not None:
                 self._inst.close()
             self._inst = Instance(self.model, "cs", parameters, name="sysid_cosimulation")
-            self._raw_set = self._inst._raw["fmi2SetReal"]
-            self._raw_get = self._inst._raw["fmi2GetReal"]
-            self._raw_step = self._inst._raw["fmi2DoStep"]
-            self._c = self._inst._c
+            self._raw_set = self._inst.functions["fmi2SetReal"]
+            self._raw_get = self._inst.functions["fmi2GetReal"]
+            self._raw_step = self._inst.functions["fmi2DoStep"]
+            self._c = self._inst.component
         else:
             self._inst.reset()
         self._inst.initialize(trim.start_values(), start_time=time)
@@ -140,7 +141,7 @@ class CoSimulation(ReleasedOnExit):
         if self._inst is None:
             raise FMUError("CoSimulation.reset(trim) must be called before stepping")
         status = self._raw_get(self._c, self._vr_out_p, len(self._vr_out), self._out_p)
-        if status > 1:
+        if status > WARNING:
             self._inst.check(status, "fmi2GetReal")
         return self._out * self._factor
 
@@ -182,14 +183,17 @@ class CoSimulation(ReleasedOnExit):
         if self._inst is None:
             raise FMUError("CoSimulation.reset(trim) must be called before stepping")
         status = self._raw_set(self._c, self._vr_in_p, 7, self._in_p)
-        if status > 1:
+        if status > WARNING:
             self._inst.check(status, "fmi2SetReal")
         status = self._raw_step(self._c, self.time, dt, 1)
-        if status > 1:
-            message = self._inst._logger.last("")
-            if "non-finite" in message or "diverged" in message:
-                raise SimulationDiverged(f"simulation diverged: {message}",
-                                         maneuver=self.name, time=self.time + dt)
+        if status == DISCARD:  # FMI 2.0: the step was computed only part-way (diverged)
+            reached = self._inst.last_successful_time()
+            when = self.time + dt if reached is None else reached
+            raise SimulationDiverged(
+                f"simulation diverged at t = {when:.2f} s: "
+                f"{self._inst.last_message('the FMU discarded the step')}",
+                maneuver=self.name, time=when)
+        if status > WARNING:
             self._inst.check(status, f"fmi2DoStep at t = {self.time:.3f} s")
         self.time += dt
         self._raw_get(self._c, self._vr_out_p, len(self._vr_out), self._out_p)
@@ -210,15 +214,15 @@ class CoSimulation(ReleasedOnExit):
         :meth:`set_state`, release with :meth:`free_state`."""
         if self._inst is None:
             raise FMUError("CoSimulation.reset(trim) must be called first")
-        return self._inst._call("getFMUstate"), self.time
+        return self._inst.call("getFMUstate"), self.time
 
     def set_state(self, snapshot) -> None:
         state, time = snapshot
-        self._inst._call("setFMUstate", state)
+        self._inst.call("setFMUstate", state)
         self.time = time
 
     def free_state(self, snapshot) -> None:
-        self._inst._call("freeFMUstate", snapshot[0])
+        self._inst.call("freeFMUstate", snapshot[0])
 
     def close(self) -> None:
         """Free the FMU instance."""

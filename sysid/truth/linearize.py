@@ -29,7 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 import xarray as xr
 
-from sysid.fmi.runtime import DerivativeFunction, FMUModel, load_fmu
+from sysid.fmi.runtime import DerivativeFunction, FMUModel
+from sysid.truth.fmu import load_fmu
 from sysid.truth.trim import NAVIGATION, TrimResult
 from sysid.core.kinematics import FORCE_LETTER, derivative_name, rigid_body_terms
 from sysid.core.units import (ANALYSIS_UNIT, CHANNELS, CONTROLS, STATES_6DOF,

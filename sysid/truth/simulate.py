@@ -12,7 +12,8 @@ import numpy as np
 import xarray as xr
 
 from sysid.core.errors import FMUError, InputDataError, SimulationDiverged
-from sysid.fmi.runtime import FMUModel, load_fmu
+from sysid.fmi.runtime import DISCARD, FMUModel
+from sysid.truth.fmu import load_fmu
 from sysid.truth.cosim import DEFAULT_OUTPUTS, GUSTS, CoSimulation
 from sysid.truth.linearize import analysis_unit, si_to_analysis
 from sysid.truth.trim import TrimResult
@@ -132,7 +133,8 @@ def _zoh_signal(time, values: dict) -> np.ndarray:
 
 
 def _simulate_me(model, trim, time, values, outputs, rtol, name):
-    from fmpy import simulate_fmu
+    from fmpy import simulate_fmu  # deferred: fmpy (see sysid.fmi.runtime)
+    from fmpy.fmi1 import FMICallException  # deferred: fmpy
 
     si = dict(values)
     for g in GUSTS:  # every input gets a column, so fmpy never falls back to start values
@@ -147,7 +149,14 @@ def _simulate_me(model, trim, time, values, outputs, rtol, name):
             output=list(outputs), model_description=model.description)
     except Exception as exc:
         text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        if "CVode" in text or "CV_" in text or "non-finite" in text:
+        # Classified by status, not by message: an FMI call that returned fmi2Discard, or
+        # CVode itself giving up (fmpy raises RuntimeError for a negative CVode flag) while
+        # every FMI call succeeded, is divergence; any other FMI status is an FMU error.
+        if isinstance(exc, FMICallException):
+            diverged = exc.status == DISCARD
+        else:
+            diverged = isinstance(exc, RuntimeError)
+        if diverged:
             raise SimulationDiverged(f"model-exchange simulation failed: {text}",
                                      maneuver=name) from None
         raise FMUError(f"model-exchange simulation failed: {text}") from None

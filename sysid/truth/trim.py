@@ -27,8 +27,9 @@ import xarray as xr
 from scipy.optimize import root
 
 from sysid.core.errors import FMUError, InputDataError
-from sysid.fmi.runtime import DerivativeFunction, FMUModel, load_fmu
+from sysid.fmi.runtime import DerivativeFunction, FMUModel
 from sysid.core.units import CHANNELS, CONTROLS, KT, STATES_6DOF, channel_attrs, convert
+from sysid.truth.fmu import load_fmu
 
 #: Rigid-body and navigation states: prescribed by the flight condition, not solved for.
 RIGID_BODY = ("u", "v", "w", "p", "q", "r", "phi", "theta", "psi")
