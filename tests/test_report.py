@@ -24,7 +24,9 @@ from browser import chromium  # noqa: F401  (pytest fixture)
 
 import sysid.report.plots
 from sysid.models import frequency_response, load_structure, simulate
-from sysid.report.html import PAPER_PAIRS, write_report
+from sysid.report import PAPER_PAIRS, write_report
+from sysid.report.figures import MAX_REPORT_PROCESSES, report_processes
+from sysid.report.sections import _truth_value
 from sysid.assess.metrics import j_rms, theil_inequality
 
 REPO = Path(__file__).resolve().parents[1]
@@ -521,8 +523,6 @@ def test_browser_loads_every_figure(report, chromium):  # noqa: F811
 def test_truth_value_from_matrices_when_linearisation_has_no_parameters(campaign):
     """A linearisation without named parameters: the truth derivative is its matrix entry
     minus the identified model's fixed (kinematic) part; a delay its delay entry."""
-    from sysid.report.html import _truth_value
-
     lin = campaign["lin"]
     bare = lin[["A", "B", "C", "D", "delay"]]
     fd = campaign["models"]["frequency_domain"]
@@ -565,7 +565,6 @@ def test_worker_processes_draw_the_same_figures_as_one_process(campaign, tmp_pat
 
 def test_report_processes_setting(monkeypatch):
     from sysid.core.errors import InputDataError
-    from sysid.report.html import MAX_REPORT_PROCESSES, report_processes
 
     monkeypatch.setenv("SYSID_REPORT_PROCESSES", "3")
     assert report_processes() == 3

@@ -1,0 +1,122 @@
+"""Figures of one report: queued while the sections are built, rendered in worker processes
+(:func:`report_processes`), written as PNG files and embedded as base64 ``<figure>`` elements.
+
+:class:`Context` is the state the sections share: the tree, the figure queue, the anchors of
+the index and each model's frequency response on the data grid (rad/s).
+"""
+
+from __future__ import annotations
+
+import base64
+import concurrent.futures
+import multiprocessing
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+import sysid.report.plots as plots
+from sysid.assess.envelopes import Envelope
+from sysid.core.errors import InputDataError
+from sysid.core.util import Progress
+from sysid.models import frequency_response
+from sysid.report.page import esc
+
+__all__ = ["MAX_REPORT_PROCESSES", "report_processes", "Renderer", "Context"]
+
+
+#: Worker processes that render the report's figures (``SYSID_REPORT_PROCESSES`` overrides;
+#: 1 renders in the calling process). Drawing is most of a report's time (about 0.9 s a
+#: figure, 25 figures for the hover study) and pure Python, so only processes help.
+MAX_REPORT_PROCESSES = 4
+
+
+def report_processes() -> int:
+    """How many processes render figures: ``SYSID_REPORT_PROCESSES``, else the usable cores
+    up to :data:`MAX_REPORT_PROCESSES`; 1 inside a daemonic process (a Dask worker), which
+    may not start children."""
+    value = os.environ.get("SYSID_REPORT_PROCESSES")
+    if value:
+        try:
+            return max(1, int(value))
+        except ValueError:
+            raise InputDataError(f"SYSID_REPORT_PROCESSES must be an integer, got "
+                                 f"{value!r}") from None
+    if multiprocessing.current_process().daemon:
+        return 1
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(cores, MAX_REPORT_PROCESSES))
+
+
+class Renderer:
+    """Renders figures in a process pool, or inline with one process; figures are queued
+    while the sections are built and collected when the page is assembled."""
+
+    def __init__(self, processes: int):
+        self._pool = None
+        if processes > 1:
+            # forkserver: a clean child, not a fork of a process that may hold threads.
+            self._pool = concurrent.futures.ProcessPoolExecutor(
+                processes, mp_context=multiprocessing.get_context("forkserver"))
+
+    def submit(self, builder, args: tuple) -> concurrent.futures.Future:
+        if self._pool is not None:
+            return self._pool.submit(plots.render_png, builder, args)
+        done: concurrent.futures.Future = concurrent.futures.Future()
+        done.set_result(plots.render_png(builder, args))
+        return done
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+@dataclass
+class Context:
+    """Shared state of one report: the tree, where figures go, the index of anchors."""
+
+    tree: xr.DataTree
+    figure_dir: Path
+    progress: Progress
+    envelope: Envelope
+    renderer: Renderer
+    figures: list[str] = field(default_factory=list)
+    anchors: dict[str, str] = field(default_factory=dict)  # anchor -> caption
+    _model_fr: dict = field(default_factory=dict)
+    _pending: dict = field(default_factory=dict)  # slot token -> (name, path, caption, future)
+
+    def figure(self, name: str, caption: str, builder, *args) -> str:
+        """Queue ``builder(*args)`` (a :mod:`sysid.report.plots` figure function) for
+        ``figures/<name>.png``; return a slot token that :meth:`embed_figures` replaces
+        with the embedded ``<figure>``."""
+        path = self.figure_dir / f"{name}.png"
+        self.figures.append(path.name)
+        self.anchors[f"fig-{name}"] = caption
+        token = f"\x00figure:{name}\x00"
+        self._pending[token] = (name, path, caption, self.renderer.submit(builder, args))
+        return token
+
+    def embed_figures(self, text: str) -> str:
+        """Write every queued figure and put its ``<figure>`` in place of its slot token."""
+        for token, (name, path, caption, future) in self._pending.items():
+            data = future.result()
+            path.write_bytes(data)
+            b64 = base64.b64encode(data).decode("ascii")
+            text = text.replace(
+                token,
+                f'<figure id="fig-{name}"><img alt="{esc(caption)}" '
+                f'src="data:image/png;base64,{b64}"><figcaption>{esc(caption)} '
+                f'<span class="file">(figures/{esc(path.name)})</span></figcaption></figure>')
+        self._pending.clear()
+        return text
+
+    def model_response(self, name: str, model: xr.Dataset, omega: np.ndarray) -> xr.DataArray:
+        """Frequency response of a model on the data grid, computed once per model."""
+        if name not in self._model_fr:
+            self._model_fr[name] = frequency_response(model, omega)
+        return self._model_fr[name]
