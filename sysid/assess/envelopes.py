@@ -191,6 +191,14 @@ def check_envelope(
     coherence). Returns per pair (all dims but ``frequency``): ``inside`` (boolean per
     frequency), ``fraction_inside`` of the coherent band, and the worst magnitude and phase
     excursion beyond the bounds (dB, deg; zero when inside).
+
+    Examples
+    --------
+    >>> from sysid.models import frequency_response as model_response
+    >>> H = model_response(model, fr["frequency"])      # model and composite data Datasets
+    >>> err = mismatch(H.sel(output="q", input="lon"), fr["H"].sel(output="q", input="lon"))
+    >>> check_envelope(err, MUAD, coherence=fr["partial_coherence"].sel(output="q", input="lon")
+    ...                )["fraction_inside"]
     """
     bounds = envelope.bounds(error["frequency"].values)
     mag, ph = error["magnitude"], error["phase"]

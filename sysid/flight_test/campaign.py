@@ -519,6 +519,12 @@ def run_campaign(campaign: Campaign, output: str | Path | None = None, *, quiet:
     manoeuvre and time) the ones completed before it are written before the error is
     raised. (Appending each manoeuvre as it completed rewrote the whole file every time:
     about 40 % of a quick campaign's run time.)
+
+    Examples
+    --------
+    >>> campaign = default_campaign(0.0, seed=1).select("sweep_lon_*")
+    >>> tree = run_campaign(campaign, "sweeps_lon.nc")
+    >>> tree["maneuvers/sweep_lon_1"]["q"]               # deg/s, absolute, on ``time`` (s)
     """
     from sysid.data import netcdf as io
 

@@ -618,6 +618,12 @@ def export_fmu(model_ds: xr.Dataset, path, *, fmi_version: int = 2,
     Returns
     -------
     Path of the written FMU.
+
+    Examples
+    --------
+    >>> from sysid.data.netcdf import read_campaign
+    >>> model = read_campaign("campaign.nc")["models/frequency_domain"].to_dataset()
+    >>> export_fmu(model, "frequency_domain.fmu")        # FMI 2.0, ME and CS, C sources inside
     """
     progress = Progress(quiet=quiet)
     if fmi_version == 3:

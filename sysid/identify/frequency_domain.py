@@ -733,6 +733,18 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
     Returns
     -------
     FrequencyFitResult
+
+    Examples
+    --------
+    >>> from sysid.data.netcdf import read_campaign
+    >>> from sysid.data.campaign import maneuvers, trim_from_attrs
+    >>> from sysid.models import load_structure
+    >>> tree = read_campaign("campaign.nc")
+    >>> fr = tree["frequency_response"].to_dataset()
+    >>> structure = load_structure("hover_6dof", trim=trim_from_attrs(maneuvers(tree, "sweep_*")))
+    >>> result = identify_frequency_domain(fr, structure,
+    ...                                    start=tree["linearization"].to_dataset())
+    >>> print(result.table())                      # derivatives, CR %, cost per pair, J_ave
     """
     t_start = time.perf_counter()
     progress = progress or Progress(quiet=quiet)

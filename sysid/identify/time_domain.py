@@ -833,6 +833,18 @@ def identify_time_domain(records, structure: LinearStructure, *,
     Returns
     -------
     TimeFitResult
+
+    Examples
+    --------
+    >>> from sysid.data.netcdf import read_campaign
+    >>> from sysid.data.campaign import maneuvers, trim_from_attrs
+    >>> from sysid.models import load_structure
+    >>> tree = read_campaign("campaign.nc")
+    >>> records = maneuvers(tree, "3211_*")
+    >>> structure = load_structure("hover_6dof", trim=trim_from_attrs(records))
+    >>> result = identify_time_domain(records, structure,
+    ...                               start=tree["linearization"].to_dataset())
+    >>> result.model["value"].sel(parameter="M_q"), result.model.attrs["J_rms"]
     """
     t_start = time.perf_counter()
     progress = progress or Progress(quiet=quiet)

@@ -127,6 +127,11 @@ def run_study(out_dir: str | Path, settings: StudySettings | None = None, *,
     ``parts`` (a subset of :data:`PARTS`) runs only those parts, each reusing what the parts
     before it stored (a part whose inputs are not stored yet computes them first). Returns
     ``None`` when ``results`` is not among them.
+
+    Examples
+    --------
+    >>> from sysid.pipeline.study import StudySettings, run_study
+    >>> run_study("reports/hover_seed1", StudySettings(seed=1))   # the report's path
     """
     from sysid.core.util import blas_threads
 

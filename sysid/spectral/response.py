@@ -169,6 +169,15 @@ def frequency_response(records, inputs: Sequence[str], outputs: Sequence[str], *
     -------
     xr.Dataset, or ``(composite, per_window)`` when ``keep_windows``. See the module docstring
     for the variables.
+
+    Examples
+    --------
+    >>> from sysid.data.netcdf import read_campaign
+    >>> from sysid.data.campaign import maneuvers
+    >>> tree = read_campaign("campaign.nc")
+    >>> fr = frequency_response(maneuvers(tree, "sweep_*"), inputs=["lon", "lat", "col", "ped"],
+    ...                         outputs=["u", "v", "w", "p", "q", "r", "phi", "theta", "psi"])
+    >>> fr["H"].sel(output="q", input="lon")        # complex, deg/s per %, on fr.frequency
     """
     inputs = _channel_list(inputs, "input")
     outputs = _channel_list(outputs, "output")
