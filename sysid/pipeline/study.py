@@ -19,7 +19,7 @@ report lists those times.
 
 Parts: ``run_study(..., parts=...)`` runs a subset of :data:`PARTS` (data, the two fits,
 results). The fits do not read each other, so two processes may run them at once on the
-same folder (:func:`sysid.data.io.update_campaign` serialises their writes); :mod:`sysid.pipeline.batch`
+same folder (:func:`sysid.data.netcdf.update_campaign` serialises their writes); :mod:`sysid.pipeline.batch`
 does so to keep its workers busy.
 """
 
