@@ -9,6 +9,14 @@ Frequency domain
     sources and therefore do not ship) from a TOML file.
 
 The time-domain metrics (J_rms, TIC) are in :mod:`sysid.assess.metrics`.
+
+References
+----------
+* *Comparison of frequency and time domain identification of a helicopter in hover*
+  (Eq. 20).
+* Hoh, R. H., MUAD bounds; MIL-STD-1797A, *Flying Qualities of Piloted Aircraft*, 1990.
+* Mitchell, D. G. et al., allowable error envelopes, 2006 (not shipped).
+* docs/methods.md, "Validation envelopes".
 """
 
 from __future__ import annotations

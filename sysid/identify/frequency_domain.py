@@ -38,6 +38,14 @@ and the 20 % / 10 % guidelines apply to it unchanged (Tischler & Remple 2012).
 Start values (paper: results depend on them; here they must not): from a start model
 Dataset (e.g. the truth model's quasi-steady linearisation) when given, otherwise from a
 frequency-domain equation-error fit (:func:`equation_error_start`).
+
+References
+----------
+* Tischler, M. B. and Remple, R. K., *Aircraft and Rotorcraft System Identification*, 2nd ed.,
+  AIAA, 2012 (CIFER's DERIVID cost, accuracy metrics).
+* *Comparison of frequency and time domain identification of a helicopter in hover*
+  (Eq. 18-19).
+* docs/methods.md, "Frequency-domain fit", "Accuracy", "Delays".
 """
 
 from __future__ import annotations

@@ -16,6 +16,12 @@ share the same rule:
    found needed).
 
 Every step, accepted or undone, is recorded.
+
+References
+----------
+* Tischler, M. B. and Remple, R. K., *Aircraft and Rotorcraft System Identification*, 2nd ed.,
+  AIAA, 2012.
+* docs/methods.md, "Model reduction".
 """
 
 from __future__ import annotations

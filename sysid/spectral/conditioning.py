@@ -35,6 +35,14 @@ Collinear inputs
     input's power explained by the others, i.e. the conditioned input keeps 1 % and its
     conditioned error variance grows a hundredfold) the frequency is flagged in ``collinear``
     and every conditioned result there is NaN; nothing near-singular is inverted.
+
+References
+----------
+* *Comparison of frequency and time domain identification of a helicopter in hover*
+  (Eq. 7-13).
+* Bendat, J. S. and Piersol, A. G., *Random Data: Analysis and Measurement Procedures*,
+  Wiley (conditioned spectral analysis).
+* docs/methods.md, "Conditioning".
 """
 
 from __future__ import annotations

@@ -34,6 +34,15 @@ record time over window length), the count used by the random-error formula Eq. 
 the error constant ``C_eps``, which absorbs the benefit of overlapping (see
 :func:`hann_error_constant`). ``n_segments`` is the number of overlapping segments actually
 averaged; they cover every record from its first to its last sample (:func:`segment_layout`).
+
+References
+----------
+* *Comparison of frequency and time domain identification of a helicopter in hover*
+  (Eq. 1-6).
+* Bendat, J. S. and Piersol, A. G., *Random Data: Analysis and Measurement Procedures*,
+  Wiley.
+* Welch, P. D., IEEE Trans. Audio Electroacoustics AU-15, 1967 (overlapped segments).
+* docs/methods.md, "Spectra" and "Coherence and random error".
 """
 
 from __future__ import annotations
