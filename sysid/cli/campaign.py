@@ -32,6 +32,7 @@ def _simulate(args) -> int:
     from sysid.core.errors import InputDataError
     from sysid.flight_test.campaign import (Campaign, default_campaign, linear_regime_campaign,
                                  run_campaign)
+    from sysid.spectral.cross_control import campaign_summary
 
     if args.campaign:
         for flag, given in (("--speed", args.speed is not None),
@@ -52,7 +53,7 @@ def _simulate(args) -> int:
     campaign = campaign.select(args.maneuvers)
     if not campaign.maneuvers:
         raise InputDataError(f"no manoeuvre matches {args.maneuvers!r}")
-    run_campaign(campaign, Path(args.output), quiet=args.quiet)
+    run_campaign(campaign, Path(args.output), quiet=args.quiet, summaries=[campaign_summary])
     if not args.quiet:
         print(Path(args.output).resolve())
     return 0

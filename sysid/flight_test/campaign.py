@@ -30,15 +30,22 @@ import tomllib
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable, Sequence
 
 import numpy as np
 import scipy.signal
 import xarray as xr
 
 import sysid
+from sysid import truth
 from sysid.core.errors import InputDataError, SimulationDiverged
 from sysid.core.units import CONTROLS, KT, STATES_6DOF, channel_attrs, convert
 from sysid.core.util import Progress, atomic_path
+from sysid.data.netcdf import write_campaign
+from sysid.signals import inputs
+
+#: A campaign summary: ``f(tree) -> (group, dataset, message)`` or None (see run_campaign).
+Summary = Callable[[xr.DataTree], "tuple[str, xr.Dataset, str] | None"]
 
 #: Measured channels recorded for every manoeuvre (analysis units).
 MEASUREMENTS = STATES_6DOF + ("ax", "ay", "az")
@@ -352,8 +359,6 @@ def linear_regime_campaign(airspeed_kt: float = 0.0, *, seed: int = 20261121,
 # ---------------------------------------------------------------------------------------
 def excitation(maneuver: Maneuver, dt: float, seed: int) -> np.ndarray:
     """The designed excitation of one manoeuvre on its axis (% from trim), sampled at ``dt``."""
-    from sysid.signals import inputs
-
     m = maneuver
     if m.kind == "sweep":
         ds = inputs.frequency_sweep(m.axis, omega_min=m.omega_min, omega_max=m.omega_max,
@@ -511,7 +516,7 @@ def _dead_band(value: float, width: float) -> float:
 # Execution
 # ---------------------------------------------------------------------------------------
 def run_campaign(campaign: Campaign, output: str | Path | None = None, *, quiet: bool = False,
-                 fmu=None) -> xr.DataTree:
+                 fmu=None, summaries: Sequence[Summary] = ()) -> xr.DataTree:
     """Fly every manoeuvre of ``campaign`` on the truth FMU; return (and write) the DataTree.
 
     With ``output`` the campaign is written to that netCDF file atomically, once, when every
@@ -520,16 +525,17 @@ def run_campaign(campaign: Campaign, output: str | Path | None = None, *, quiet:
     raised. (Appending each manoeuvre as it completed rewrote the whole file every time:
     about 40 % of a quick campaign's run time.)
 
+    ``summaries`` run on the completed campaign before it is written; each returns
+    ``(group, dataset, message)`` (stored at ``/<group>``, message printed) or None. They come
+    from higher layers, e.g. the cross-control coherence of
+    :func:`sysid.spectral.cross_control.campaign_summary`.
+
     Examples
     --------
     >>> campaign = default_campaign(0.0, seed=1).select("sweep_lon_*")
     >>> tree = run_campaign(campaign, "sweeps_lon.nc")
     >>> tree["maneuvers/sweep_lon_1"]["q"]               # deg/s, absolute, on ``time`` (s)
     """
-    from sysid.data import netcdf as io
-
-    from sysid import truth
-
     campaign.validate()
     progress = Progress(quiet=quiet)
     model = truth.load_fmu(fmu)
@@ -555,66 +561,19 @@ def run_campaign(campaign: Campaign, output: str | Path | None = None, *, quiet:
             tree[f"maneuvers/{m.name}"] = xr.DataTree(ds)
     except BaseException:
         if output is not None:
-            io.write_campaign(tree, output)  # what was completed
+            write_campaign(tree, output)  # what was completed
         raise
     finally:
         sim.close()
-    summary = cross_control_summary(tree)
-    if summary is not None:
-        tree["cross_control_coherence"] = xr.DataTree(summary)
-        progress.message(format_cross_control(summary))
+    for summarise in summaries:
+        result = summarise(tree)
+        if result is not None:
+            group, dataset, message = result
+            tree[group] = xr.DataTree(dataset)
+            progress.message(message)
     if output is not None:
-        io.write_campaign(tree, output)
+        write_campaign(tree, output)
     return tree
-
-
-#: Band over which the campaign's cross-control coherence is summarised, rad/s.
-CROSS_CONTROL_BAND = (0.5, 10.0)
-
-
-def cross_control_summary(tree: xr.DataTree, pattern: str = "sweep_*") -> xr.Dataset | None:
-    """Cross-control coherence (paper Eq. 8) of the sweeps, per excited axis.
-
-    Returns ``cross_coherence`` (axis, input, input_j, frequency) and its mean over
-    :data:`CROSS_CONTROL_BAND` as ``mean_cross_coherence`` (axis, input, input_j); the
-    guideline for well-conditioned MIMO identification is a mean below about 0.5.
-    """
-    from sysid.data import campaign as io
-    from sysid.spectral.response import frequency_response
-
-    names = io.list_maneuvers(tree, pattern)
-    if not names:
-        return None
-    per_axis = {}
-    for axis in CONTROLS:
-        records = [tree[f"maneuvers/{n}"].to_dataset() for n in names
-                   if tree[f"maneuvers/{n}"].attrs.get("axis") == axis]
-        if records:
-            fr = frequency_response(records, CONTROLS, ["q"], n_windows=3)
-            per_axis[axis] = fr["cross_coherence"]
-    if not per_axis:
-        return None
-    coherence = xr.concat(list(per_axis.values()), dim=xr.DataArray(list(per_axis), dims="axis"))
-    band = coherence.frequency.where((coherence.frequency >= CROSS_CONTROL_BAND[0])
-                                     & (coherence.frequency <= CROSS_CONTROL_BAND[1]))
-    mean = coherence.where(band.notnull()).mean("frequency")
-    return xr.Dataset(
-        {"cross_coherence": coherence.assign_attrs(long_name="cross-control coherence (Eq. 8)"),
-         "mean_cross_coherence": mean.assign_attrs(
-             long_name=f"mean cross-control coherence over {CROSS_CONTROL_BAND} rad/s")},
-        attrs={"band_rad_s": list(CROSS_CONTROL_BAND), "guideline": 0.5})
-
-
-def format_cross_control(summary: xr.Dataset) -> str:
-    """One line per excited axis: mean cross-control coherence with each other control."""
-    lines = [f"cross-control coherence, mean over {CROSS_CONTROL_BAND[0]:g}-"
-             f"{CROSS_CONTROL_BAND[1]:g} rad/s (guideline < 0.5):"]
-    mean = summary["mean_cross_coherence"]
-    for axis in mean.axis.values:
-        cells = [f"{other}: {float(mean.sel(axis=axis, input=axis, input_j=other)):.2f}"
-                 for other in CONTROLS if other != axis]
-        lines.append(f"  {axis} sweeps  " + "  ".join(cells))
-    return "\n".join(lines)
 
 
 def _campaign_attrs(campaign: Campaign) -> dict:
@@ -631,8 +590,6 @@ def _campaign_attrs(campaign: Campaign) -> dict:
 def fly(sim, trim, loops: dict[str, _Loop], maneuver: Maneuver, campaign: Campaign,
         progress: Progress | None = None) -> xr.Dataset:
     """Fly one manoeuvre from trim with the holds closed; return its time history."""
-    from sysid.signals import inputs
-
     progress = progress or Progress(quiet=True)
     dt = 1.0 / campaign.sample_rate
     index = campaign.maneuvers.index(maneuver) if maneuver in campaign.maneuvers else 0

@@ -220,7 +220,7 @@ def generate_model_description(model: ModelSources, guid: str, version: str) -> 
 
 def fmi_header_dir() -> Path:
     """Folder of the FMI 2.0 C headers installed with fmpy."""
-    import fmpy
+    import fmpy  # deferred: fmpy (native helpers, 0.14 s), needed only to build
 
     folder = Path(fmpy.__file__).parent / "c-code"
     missing = [h for h in FMI_HEADERS if not (folder / h).is_file()]
@@ -246,7 +246,7 @@ def find_compiler() -> list[str]:
 
 def platform_folder() -> tuple[str, str]:
     """FMI 2.0 binaries folder name and shared-library extension of this machine."""
-    from fmpy import platform, sharedLibraryExtension
+    from fmpy import platform, sharedLibraryExtension  # deferred: fmpy
 
     return platform, sharedLibraryExtension
 

@@ -373,7 +373,7 @@ class _Logger:
         self.callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
         self.callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
         try:  # fmpy's native proxy formats the variadic message; optional
-            from fmpy.logging import addLoggerProxy
+            from fmpy.logging import addLoggerProxy  # deferred: fmpy
 
             addLoggerProxy(ctypes.byref(self.callbacks))
         except Exception:

@@ -204,11 +204,12 @@ class _Study:
         from sysid.data.campaign import maneuvers
         from sysid.data.netcdf import read_campaign, update_campaign
         from sysid.flight_test.campaign import run_campaign
+        from sysid.spectral.cross_control import campaign_summary
         from sysid.core.units import CONTROLS, STATES_6DOF
 
         self.stage("campaign", "maneuvers", self.key_campaign,
                    lambda: run_campaign(self.campaign, self.path, quiet=self.quiet,
-                                        fmu=self.fmu_path))
+                                        fmu=self.fmu_path, summaries=[campaign_summary]))
 
         def responses():
             _cli("frequency-response", self.path, "--inputs", ",".join(CONTROLS),

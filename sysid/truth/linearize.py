@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import xarray as xr
 
+import sysid
 from sysid.fmi.runtime import DerivativeFunction, FMUModel
 from sysid.truth.fmu import load_fmu
 from sysid.truth.trim import NAVIGATION, TrimResult
@@ -119,11 +120,9 @@ def residualize(A: np.ndarray, B: np.ndarray, slow: list[int], fast: list[int]):
 
 
 def _common_attrs(trim: TrimResult, step: float) -> dict:
-    from sysid import __version__
-
     return {"method": "linearization", "flight_condition": trim.flight_condition,
             "airspeed_kt": float(trim.airspeed_kt), "fmu_name": trim.fmu_name,
-            "fmu_guid": trim.fmu_guid, "sysid_version": __version__,
+            "fmu_guid": trim.fmu_guid, "sysid_version": sysid.__version__,
             "finite_difference_step": step,
             "finite_difference": "central differences of the ME derivatives, "
                                  "h_j = step * nominal_j (controls: step * 1 %)"}

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
+import sysid
 from sysid.core.errors import FMUError, InputDataError, SimulationDiverged
 from sysid.fmi.runtime import DISCARD, FMUModel
 from sysid.truth.fmu import load_fmu
@@ -79,8 +80,6 @@ def _check_inputs(inputs: xr.Dataset) -> tuple[np.ndarray, dict]:
 
 def _time_history(model: FMUModel, time, controls: dict, outputs: dict, trim: TrimResult,
                   inputs: xr.Dataset, mode: str) -> xr.Dataset:
-    from sysid import __version__
-
     data = {}
     for name in CONTROLS:
         data[name] = ("time", np.clip(controls[name], 0.0, 100.0), channel_attrs(name))
@@ -95,7 +94,7 @@ def _time_history(model: FMUModel, time, controls: dict, outputs: dict, trim: Tr
     attrs = {"maneuver": "simulation", "kind": "", "axis": "", "seed": -1}
     attrs.update({k: v for k, v in inputs.attrs.items() if v is not None})
     attrs.update(trim.attrs())
-    attrs.update(fmu_name=model.name, fmu_guid=model.guid, sysid_version=__version__,
+    attrs.update(fmu_name=model.name, fmu_guid=model.guid, sysid_version=sysid.__version__,
                  simulation=mode)
     ds.attrs = attrs
     ds["lon"].attrs["note"] = "applied (saturated to 0-100 %) control, zero-order held"

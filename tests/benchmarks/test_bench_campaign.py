@@ -12,6 +12,7 @@ import time
 import pytest
 
 from sysid.flight_test.campaign import default_campaign, run_campaign
+from sysid.spectral.cross_control import campaign_summary
 
 pytestmark = pytest.mark.fmu
 
@@ -28,7 +29,8 @@ def test_default_hover_campaign(benchmark, truth_fmu, tmp_path):
         # Peak resident memory of the process (getrusage, KiB on Linux); tracemalloc would
         # slow the stepping loop tenfold and distort the time.
         start = time.perf_counter()
-        tree = run_campaign(campaign, tmp_path / "campaign.nc", quiet=True, fmu=truth_fmu)
+        tree = run_campaign(campaign, tmp_path / "campaign.nc", quiet=True, fmu=truth_fmu,
+                            summaries=[campaign_summary])
         elapsed = time.perf_counter() - start
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
         return tree, elapsed, peak
