@@ -15,6 +15,7 @@ Time histories here are in analysis units (ft/s, deg/s, deg, %), absolute.
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
 from typing import Iterable, Mapping
 
@@ -58,7 +59,7 @@ class _Exported:
     """The FMI view of an exported FMU: names, value references, units, trims."""
 
     def __init__(self, path):
-        from fmpy import read_model_description  # deferred: fmpy is optional
+        from fmpy import read_model_description  # deferred: fmpy is slow to import
 
         self.path = Path(path)
         if not self.path.is_file():
@@ -167,14 +168,12 @@ def simulate_exported(fmu_path, inputs: xr.Dataset, *, mode: str = "cs",
 
 def _run_cs(fmu: _Exported, t: np.ndarray, U: np.ndarray, step_size: float | None,
             params: dict):
-    import tempfile
-
     with tempfile.TemporaryDirectory(prefix="sysid-fmu-") as unzip:
         return _run_cs_in(fmu, t, U, step_size, params, unzip)
 
 
 def _run_cs_in(fmu: _Exported, t, U, step_size, params: dict, unzip: str):
-    from fmpy import extract
+    from fmpy import extract  # deferred: fmpy is slow to import
     from fmpy.fmi2 import FMU2Slave
 
     extract(str(fmu.path), unzipdir=unzip)
@@ -213,7 +212,7 @@ def _run_cs_in(fmu: _Exported, t, U, step_size, params: dict, unzip: str):
 
 
 def _run_me(fmu: _Exported, t: np.ndarray, U: np.ndarray, rtol: float, params: dict):
-    from fmpy import simulate_fmu
+    from fmpy import simulate_fmu  # deferred: fmpy is slow to import
 
     tt = t - t[0]
     rows = [(tt[0], *U[0])]

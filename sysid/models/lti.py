@@ -77,7 +77,7 @@ def statespace(model: xr.Dataset, *, pade_order: int | None = None):
     is replaced by an n-th order Pade approximant (:func:`control.pade`) feeding only the B
     entries that carry that delay, so the system has extra states ``pade_<input>_<k>_<i>``.
     """
-    import control  # deferred: python-control is only needed for this conversion
+    import control  # deferred: python-control is slow to import and only needed here
 
     A, B, C, D, tau = model_matrices(model)
     states = [str(s) for s in model["A"].state.values]
