@@ -695,18 +695,18 @@ def test_validate_reports_an_unusable_model_and_validates_the_others(tmp_path, c
     """A model whose exported FMU cannot be simulated (seen in a batch: a diverged fit with
     derivatives near 1e19 made CVode fail) is a validation result stored and printed, not a
     crash; the other models are still validated."""
-    from sysid.assess import exported as fmu_validation
+    from sysid.assess import validation
     from sysid.data import netcdf as io
     from sysid.cli import main
 
-    real = fmu_validation.roundtrip_error
+    real = validation.roundtrip_error
 
     def failing_for_broken(model, fmu_path, inputs, **kwargs):
         if "broken" in str(fmu_path):
             raise RuntimeError("CVode error: the right-hand side failed repeatedly")
         return real(model, fmu_path, inputs, **kwargs)
 
-    monkeypatch.setattr(fmu_validation, "roundtrip_error", failing_for_broken)
+    monkeypatch.setattr(validation, "roundtrip_error", failing_for_broken)
     path = tmp_path / "campaign.nc"
     io.update_campaign(path, "models/good", _model())
     io.update_campaign(path, "models/broken", _model())

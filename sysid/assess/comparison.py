@@ -4,16 +4,21 @@ The paper's Tables 2-3 list, per derivative, the frequency-domain and the time-d
 estimates with their normalised Cramer-Rao bounds. :func:`derivative_table` builds that table
 for any set of model Datasets (``docs/data_model.md``) plus the truth model's quasi-steady
 linearisation, and :func:`sign_agreement` checks the paper's conclusion 8 (consistent signs
-of the dominant derivatives).
+of the dominant derivatives). :func:`compare_models` builds a campaign's ``/comparison``
+group from its ``/models`` and ``/linearization``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from pathlib import Path
 
 import numpy as np
 import xarray as xr
 
+from sysid.core.errors import InputDataError
+from sysid.core.util import atomic_path
+from sysid.data.campaign import CampaignData
 from sysid.models import parameter_values
 
 #: The derivatives that dominate the hover dynamics (damping and on-axis control power).
@@ -62,6 +67,24 @@ def derivative_table(models: Mapping[str, xr.Dataset], truth: xr.Dataset | None 
     )
 
 
+def compare_models(data: CampaignData) -> xr.Dataset:
+    """The ``/comparison`` Dataset of a campaign: :func:`derivative_table` of every
+    ``/models/<method>`` beside the truth linearisation ``/linearization`` (when present)."""
+    models = data.models()
+    if not models:
+        raise InputDataError(f"{data.source} has no identified models (/models/<method>); "
+                             "run 'sysid identify' and/or 'sysid identify-time' first")
+    return derivative_table(models, data.quasi_steady())
+
+
+def write_table_csv(table: xr.Dataset, path: str | Path) -> Path:
+    """Write a :func:`derivative_table` as CSV (one row per parameter and model), atomically."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        table.to_dataframe().reset_index().to_csv(tmp, index=False)
+    return path
+
+
 def relative_error(table: xr.Dataset) -> xr.DataArray:
     """``(value - truth) / |truth|`` per parameter and model."""
     return (table["value"] - table["truth"]) / abs(table["truth"])
@@ -73,6 +96,14 @@ def sign_agreement(table: xr.Dataset, parameters=DOMINANT) -> xr.DataArray:
     signs = np.sign(table["value"].sel(parameter=present))
     agree = (signs.max("model", skipna=True) == signs.min("model", skipna=True))
     return agree.assign_attrs(long_name="all methods agree on the sign")
+
+
+def format_sign_agreement(table: xr.Dataset) -> str:
+    """One line: the dominant derivatives whose sign differs between methods, if any."""
+    agree = sign_agreement(table)
+    differing = [str(p) for p, ok in zip(agree.parameter.values, agree.values) if not ok]
+    return ("dominant derivatives with the same sign in every method: "
+            + ("all" if not differing else f"all but {', '.join(differing)}"))
 
 
 def format_table(table: xr.Dataset) -> str:

@@ -15,6 +15,7 @@ import sys
 
 from sysid import __version__
 from sysid.core.errors import SysidError
+from sysid.core.util import blas_threads
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -38,8 +39,6 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    from sysid.core.util import blas_threads
-
     try:
         with blas_threads():
             return int(args.func(args) or 0)

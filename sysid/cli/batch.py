@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
+
+from sysid.pipeline.batch import default_conditions, format_summary, load_conditions, run_batch
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -28,9 +32,6 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from sysid.pipeline.batch import default_conditions, format_summary, load_conditions, run_batch
-    import dataclasses
-
     if args.speeds:
         conditions = load_conditions(args.speeds)
     else:

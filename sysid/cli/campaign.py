@@ -4,6 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from sysid.core.errors import InputDataError
+from sysid.flight_test.campaign import (Campaign, default_campaign, linear_regime_campaign,
+                                        run_campaign)
+from sysid.spectral.cross_control import campaign_summary
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -29,11 +34,6 @@ def register(subparsers) -> None:
 
 
 def _simulate(args) -> int:
-    from sysid.core.errors import InputDataError
-    from sysid.flight_test.campaign import (Campaign, default_campaign, linear_regime_campaign,
-                                 run_campaign)
-    from sysid.spectral.cross_control import campaign_summary
-
     if args.campaign:
         for flag, given in (("--speed", args.speed is not None),
                             ("--linear-regime", args.linear_regime)):

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from pathlib import Path
+from sysid.data.campaign import CampaignData
+from sysid.data.netcdf import update_campaign
+from sysid.assess.comparison import (compare_models, format_sign_agreement, format_table,
+                                     sign_agreement, write_table_csv)
 
 
 def register(subparsers) -> None:
@@ -18,29 +21,12 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from sysid.assess.comparison import derivative_table, format_table, sign_agreement
-    from sysid.core.errors import InputDataError
-    from sysid.data.netcdf import read_campaign, update_campaign
-    from sysid.core.util import atomic_path
-
-    tree = read_campaign(args.campaign)
-    if "models" not in tree or not tree["models"].children:
-        raise InputDataError(f"{args.campaign} has no identified models (/models/<method>); "
-                             "run 'sysid identify' and/or 'sysid identify-time' first")
-    models = {name: node.to_dataset(inherit=False)
-              for name, node in tree["models"].children.items()}
-    truth = tree["linearization"].to_dataset() if "linearization" in tree else None
-    table = derivative_table(models, truth)
+    table = compare_models(CampaignData.read(args.campaign))
     update_campaign(args.campaign, "comparison", table)
     print(format_table(table))
-    agree = sign_agreement(table)
-    if agree.size:
-        differing = [str(p) for p, ok in zip(agree.parameter.values, agree.values) if not ok]
-        print("dominant derivatives with the same sign in every method: "
-              + ("all" if not differing else f"all but {', '.join(differing)}"))
+    if sign_agreement(table).size:
+        print(format_sign_agreement(table))
     if args.csv:
-        with atomic_path(Path(args.csv)) as tmp:
-            frame = table.to_dataframe().reset_index()
-            frame.to_csv(tmp, index=False)
+        write_table_csv(table, args.csv)
         print(f"wrote {args.csv}")
     return 0

@@ -4,28 +4,25 @@ from __future__ import annotations
 
 import argparse
 
+from sysid.core.kinematics import FORCE_LETTER
+from sysid.truth import build_fmu, linearize, trim
+
 #: Order of the derivative tables: force/moment rows, state and control columns.
 _ROWS = ("u", "v", "w", "p", "q", "r")
 _CONTROLS = ("lon", "lat", "col", "ped")
 
 
 def _cmd_build(args: argparse.Namespace) -> int:
-    from sysid.truth import build_fmu
-
     print(build_fmu(force=args.force))
     return 0
 
 
 def _cmd_trim(args: argparse.Namespace) -> int:
-    from sysid.truth import trim
-
     print(trim(args.speed).table())
     return 0
 
 
 def _table(ds, columns, title: str) -> list[str]:
-    from sysid.core.kinematics import FORCE_LETTER
-
     value = ds["value"]
     lines = [title, f"{'':>4}" + "".join(f"{c:>12}" for c in columns)]
     for row in _ROWS:
@@ -48,8 +45,6 @@ def _eigen_lines(ev, title: str) -> list[str]:
 
 
 def _cmd_linearize(args: argparse.Namespace) -> int:
-    from sysid.truth import linearize, trim
-
     lin = linearize(trim(args.speed))
     ds = lin.quasi_steady
     out = [f"Quasi-steady 6-DoF derivatives at {ds.attrs['flight_condition']} "

@@ -10,15 +10,13 @@ per pair: the frequency range where the (partial) coherence is at least 0.6 and 
 
 from __future__ import annotations
 
-import fnmatch
-
-import numpy as np
-
 from sysid.core.errors import InputDataError
-from sysid.core.guidelines import COHERENCE_MIN
-
-#: Coherence guideline for a usable frequency range.
-COHERENCE_GUIDELINE = COHERENCE_MIN
+from sysid.core.util import Progress
+from sysid.data.campaign import CampaignData
+from sysid.data.netcdf import update_campaign_groups
+from sysid.spectral.response import frequency_response
+from sysid.spectral.spectra import DEFAULT_C_EPS
+from sysid.assess.coherence import format_coherent_ranges
 
 
 def _floats(text: str) -> list[float]:
@@ -62,40 +60,12 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def _records(tree, pattern: str, path) -> dict:
-    if "maneuvers" not in tree.children:
-        raise InputDataError(f"campaign {path} has no /maneuvers group")
-    names = sorted(n for n in tree["maneuvers"].children if fnmatch.fnmatchcase(n, pattern))
-    if not names:
-        raise InputDataError(
-            f"campaign {path}: no manoeuvre matches {pattern!r} (found "
-            f"{sorted(tree['maneuvers'].children)})")
-    return {n: tree["maneuvers"][n].to_dataset() for n in names}
-
-
-def summary_lines(ds) -> list[str]:
-    """One line per pair: coherent range (coherence >= 0.6) and mean coherence."""
-    coh_name = "partial_coherence" if ds.attrs.get("conditioned") else "coherence"
-    w = ds["frequency"].values
-    lines = [f"{'pair':>16}  {'coherent range (rad/s)':>24}  {'mean ' + coh_name:>24}"]
-    for o in ds["output"].values:
-        for i in ds["input"].values:
-            g2 = ds[coh_name].sel(output=o, input=i).values
-            ok = np.nan_to_num(g2) >= COHERENCE_GUIDELINE
-            rng = f"{w[ok].min():8.3g} .. {w[ok].max():<8.3g}" if ok.any() else "none"
-            lines.append(f"{f'{o}/{i}':>16}  {rng:>24}  {np.nanmean(g2):24.2f}")
-    return lines
-
-
 def run(args) -> int:
-    from sysid.spectral.response import frequency_response
-    from sysid.data.netcdf import read_campaign, update_campaign
-    from sysid.spectral.spectra import DEFAULT_C_EPS
-    from sysid.core.util import Progress
-
     progress = Progress(quiet=args.quiet)
-    tree = read_campaign(args.campaign)
-    records = _records(tree, args.maneuvers, args.campaign)
+    data = CampaignData.read(args.campaign)
+    if "maneuvers" not in data.tree.children:
+        raise InputDataError(f"campaign {args.campaign} has no /maneuvers group")
+    records = data.maneuvers(args.maneuvers)
     progress.message(f"[sysid] frequency response from {len(records)} record(s): "
                      f"{', '.join(records)}")
     result = frequency_response(
@@ -106,14 +76,11 @@ def run(args) -> int:
         conditioned=not args.unconditioned, keep_windows=args.keep_windows, progress=progress,
         transient_states=args.transient_states)
     composite, per_window = result if args.keep_windows else (result, None)
-    update_campaign(args.campaign, "frequency_response", composite)
+    groups = {"frequency_response": composite}
     if per_window is not None:
-        update_campaign(args.campaign, "frequency_response_windows", per_window)
+        groups["frequency_response_windows"] = per_window
+    update_campaign_groups(args.campaign, groups)
     if not args.quiet:
-        for line in summary_lines(composite):
-            print(line)
-        groups = "/frequency_response"
-        if per_window is not None:
-            groups += " and /frequency_response_windows"
-        print(f"wrote {groups} to {args.campaign}")
+        print(format_coherent_ranges(composite))
+        print(f"wrote {' and '.join('/' + g for g in groups)} to {args.campaign}")
     return 0

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from sysid.pipeline.study import StudySettings, run_study
+
 #: study name -> (default airspeed kt, default structure, default output folder)
 STUDIES = {
     "hover": (0.0, "hover_6dof", "reports/hover"),
@@ -30,8 +32,6 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from sysid.pipeline.study import StudySettings, run_study
-
     speed, structure, folder = STUDIES[args.study]
     settings = StudySettings(
         airspeed_kt=speed if args.speed is None else args.speed,

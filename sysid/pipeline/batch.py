@@ -46,7 +46,6 @@ The ``batch.nc`` Dataset (dims ``condition``, ``model`` (the identification meth
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import json
 import math
@@ -59,23 +58,19 @@ from typing import Iterable, Sequence
 import numpy as np
 import xarray as xr
 
+from sysid.core import errors
 from sysid.core.errors import InputDataError, SysidError
-from sysid.models import parameter_values
+from sysid.core.units import CONTROLS
 from sysid.core.util import Progress, atomic_path
+from sysid.data.netcdf import read_campaign
+from sysid.flight_test.campaign import default_campaign
+from sysid.models import parameter_values
+from sysid.pipeline.study import (FORWARD_FLIGHT_KT, METHODS, PARTS, StudySettings, run_study,
+                                  structure_for)
+from sysid.truth import build_fmu
 
 #: Default flight conditions, kt (the issue's list).
 DEFAULT_SPEEDS = (0.0, 20.0, 40.0, 60.0, 80.0, 100.0)
-#: From this airspeed (kt) up the forward-flight structure is used.
-FORWARD_FLIGHT_KT = 30.0
-#: Methods whose models the batch collects.
-METHODS = ("frequency_domain", "time_domain")
-
-
-def structure_for(airspeed_kt: float) -> str:
-    """The built-in structure used at ``airspeed_kt`` when none is named."""
-    return "hover_6dof" if airspeed_kt < FORWARD_FLIGHT_KT else "forward_6dof"
-
-
 @dataclass(frozen=True)
 class Condition:
     """One flight condition / Monte Carlo sample.
@@ -186,8 +181,6 @@ def load_conditions(path: str | Path) -> list[Condition]:
 # -----------------------------------------------------------------------------------------
 def quick_campaign(airspeed_kt: float, *, noise: bool, seed: int):
     """The default campaign reduced for fast checks (see :class:`Condition`)."""
-    from sysid.flight_test.campaign import default_campaign
-
     full = default_campaign(airspeed_kt, noise=noise, seed=seed)
     kept = [m for m in full.maneuvers if m.kind != "sweep" or m.name.endswith("_1")]
     return dataclasses.replace(full, name=full.name + "_quick", maneuvers=kept)
@@ -196,8 +189,6 @@ def quick_campaign(airspeed_kt: float, *, noise: bool, seed: int):
 def study_settings(condition: Condition, folder: str | Path):
     """The :class:`~sysid.pipeline.study.StudySettings` of ``condition`` (writes the quick campaign
     TOML into ``folder`` when ``quick``)."""
-    from sysid.pipeline.study import StudySettings
-
     campaign_file = None
     if condition.quick:
         campaign = quick_campaign(condition.airspeed_kt, noise=condition.noise,
@@ -238,8 +229,6 @@ def completed(condition: Condition, folder: str | Path) -> bool:
 def run_condition(spec: dict, folder: str, fail: str | None = None) -> dict:
     """Run one condition's whole study in ``folder``, its parts one after another; never
     raises. Returns the record of :func:`run_condition_part`'s last part."""
-    from sysid.pipeline.study import PARTS
-
     records: dict[str, dict] = {}
     for part in PARTS:
         records[part] = run_condition_part(spec, folder, part, fail,
@@ -266,10 +255,7 @@ def run_condition_part(spec: dict, folder: str, part: str, fail: str | None = No
     Returns ``{"name", "condition", "status": "ok"|"failed", "error_type", "message",
     "part_elapsed_s": {part: s}, "elapsed_s" (their sum), "summary": Dataset|None}``.
     """
-    import dask
-
-    from sysid.core import errors
-    from sysid.pipeline.study import run_study
+    import dask  # deferred: an optional heavy dependency, needed only inside a Dask task
 
     condition = Condition(**spec)
     folder_path = Path(folder)
@@ -291,12 +277,12 @@ def run_condition_part(spec: dict, folder: str, part: str, fail: str | None = No
             # a Dask worker xarray would guard every netCDF access with a lock held by the
             # scheduler (a network round trip per variable): a part took 2.3x as long and
             # kept the scheduler's process busy. The part's own I/O needs no cluster lock
-            # (update_campaign locks the folder), so it runs on the local scheduler.
+            # (only one part of a condition writes each file at a time: see
+            # sysid.pipeline.study), so it runs on the local scheduler.
             with open(folder_path / f"study_{part}.log", "w") as log, \
-                    contextlib.redirect_stdout(log), contextlib.redirect_stderr(log), \
                     dask.config.set(scheduler="synchronous"):
                 run_study(folder_path, study_settings(condition, folder_path), quiet=True,
-                          parts=(part,))
+                          parts=(part,), log=log)
             if part == "results":
                 record["summary"] = condition_summary(folder_path)
         except Exception as exc:  # noqa: BLE001 - the batch must survive any condition
@@ -318,8 +304,6 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
 
     Dims ``model`` (method) and ``parameter``; see the module docstring for the variables.
     """
-    from sysid.data.netcdf import read_campaign
-
     tree = read_campaign(Path(folder) / "campaign.nc")
     models = {}
     for method in METHODS:
@@ -405,7 +389,7 @@ class BatchResult:
 def _client(scheduler: str | None, n_workers: int, quiet: bool):
     import logging
 
-    from distributed import Client, LocalCluster
+    from distributed import Client, LocalCluster  # deferred: optional heavy dependency
 
     if scheduler:
         return Client(scheduler), None
@@ -421,8 +405,6 @@ def _submit_condition(client, condition: Condition, folder: Path, fail: str | No
     """Submit one condition's study as one Dask task per part (:data:`PART_NEEDS`); return
     the future of its last part. Finer tasks than whole studies keep both workers busy to
     the end of the batch (the two fits of a condition run side by side)."""
-    from sysid.pipeline.study import PARTS
-
     stamp = time.time_ns()
     tasks: dict = {}
     for part in PARTS:
@@ -440,8 +422,6 @@ def run_batch(conditions: Sequence[Condition], out_dir: str | Path, *,
     ``inject_failure`` maps a condition name to an exception class name of
     :mod:`sysid.core.errors` raised inside its task (fault-tolerance tests).
     """
-    from sysid import truth as fmu
-
     conditions = list(conditions)
     if not conditions:
         raise InputDataError("run_batch: no conditions given")
@@ -475,10 +455,10 @@ def run_batch(conditions: Sequence[Condition], out_dir: str | Path, *,
             todo.append(c)
 
     if todo:
-        fmu.build_fmu()  # once here, so workers never race to build the truth FMU
+        build_fmu()  # once here, so workers never race to build the truth FMU
         client, cluster = _client(scheduler, n_workers, quiet)
         try:
-            from distributed import as_completed
+            from distributed import as_completed  # deferred: optional heavy dependency
 
             futures = {}
             for c in todo:
@@ -563,8 +543,6 @@ def combine(conditions: Sequence[Condition], records: Sequence[dict]) -> xr.Data
 
 
 def _order(parameters) -> list[str]:
-    from sysid.core.units import CONTROLS
-
     def key(name: str):
         if name.startswith("tau_"):
             return (2, name)
@@ -585,7 +563,7 @@ def estimated_parameters(ds: xr.Dataset) -> list[str]:
 
 def plot_derivatives(ds: xr.Dataset, path: str | Path) -> Path | None:
     """Grid of every estimated parameter against airspeed (CR bars, truth line); PNG."""
-    import matplotlib
+    import matplotlib  # deferred: optional heavy dependency, only for the figure
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -4,42 +4,78 @@
 output folder::
 
     <out>/campaign.nc          the campaign DataTree (time histories and every result)
+    <out>/model_frequency_domain.nc, <out>/model_time_domain.nc
+                               each fit's model until the results part merges it into
+                               campaign.nc (/models/<method>)
     <out>/frequency_domain.fmu, <out>/time_domain.fmu   the identified models as FMUs
     <out>/comparison.csv       derivative table (paper Tables 2-3)
     <out>/report.html, <out>/figures/   the report
 
-Each stage is the same code as its ``sysid`` sub-command (the workflow drives them through
-:func:`sysid.cli.main`), so the command line and the workflow cannot drift apart.
+Every stage is a library call on labelled xarray objects in memory: the campaign is flown
+(:func:`sysid.flight_test.campaign.run_campaign`), the responses computed
+(:func:`sysid.spectral.response.frequency_response`), the fits run
+(:mod:`sysid.identify.stages`), the models verified, compared and validated
+(:mod:`sysid.assess.stages`, :mod:`sysid.assess.comparison`, :mod:`sysid.assess.validation`)
+and the report written from the tree in memory. The ``sysid`` sub-commands call the same
+functions. The stages' tables go to ``log`` (a text stream), not to a redirected stdout.
 
-Caching: every stage stamps its result group with a key hashing its settings and the key of
-the stage before it. A re-run skips a stage whose group carries the key it would write, so
+Writes: each stage writes its result groups once, together with its cache stamp (one
+:func:`sysid.data.netcdf.update_campaign_groups`), so the campaign file is written once per
+stage boundary.
+
+Caching: every stage stamps its result group with a key hashing its settings and the keys of
+the stages before it (``workflow_key``) and the seconds it took (``workflow_elapsed_s``,
+listed by the report). A re-run skips a stage whose group carries the key it would write, so
 changing e.g. the structure re-runs identification and everything after it, but not the
-campaign. Each stamp also records how long the stage took (``workflow_elapsed_s``), and the
-report lists those times.
+campaign; a re-run with nothing changed writes nothing.
 
 Parts: ``run_study(..., parts=...)`` runs a subset of :data:`PARTS` (data, the two fits,
-results). The fits do not read each other, so two processes may run them at once on the
-same folder (:func:`sysid.data.netcdf.update_campaign` serialises their writes); :mod:`sysid.pipeline.batch`
-does so to keep its workers busy.
+results); :mod:`sysid.pipeline.batch` runs them as separate Dask tasks. Only one part at a
+time writes ``campaign.nc``: ``data`` writes it before the fits start; the fits only read it
+and write their own files (``model_<method>.nc``), so they may run at the same time, on one
+machine or two, without a file lock; ``results`` merges both models into ``campaign.nc`` and
+writes everything after them. (A fit part started before the data part has stored its
+results runs the data part itself: do not start such parts side by side.)
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable, Mapping, TextIO
 
 import xarray as xr
 
 import sysid
 from sysid.core.errors import SysidError
 from sysid.core.guidelines import COHERENCE_MIN
-from sysid.core.util import Progress
+from sysid.core.units import CONTROLS, STATES_6DOF
+from sysid.core.util import Progress, blas_threads
+from sysid.data.campaign import CampaignData
+from sysid.data.netcdf import group_attrs, read_campaign, update_campaign_groups, write_campaign
+from sysid.flight_test.campaign import Campaign, default_campaign, run_campaign
+from sysid.identify.stages import fit_frequency_domain, fit_time_domain
+from sysid.models import structure_path
+from sysid.report.html import write_report
+from sysid.spectral.cross_control import campaign_summary
+from sysid.spectral.response import frequency_response, siso_frequency_response
+from sysid.assess.coherence import format_coherent_ranges
+from sysid.assess.comparison import (compare_models, format_sign_agreement, format_table,
+                                     write_table_csv)
+from sysid.assess.stages import verify_models
+from sysid.assess.validation import format_validation, truth_reference, validate_models
+from sysid.assess.verification import verification_table
+from sysid.truth import build_fmu
 
-STAGES = ("campaign", "frequency_response", "identify", "identify_time", "verify",
-          "compare", "validate", "report")
+__all__ = ["FORWARD_FLIGHT_KT", "FD_COHERENCE_MIN_HOVER", "FD_COHERENCE_MIN_FORWARD",
+           "StudySettings", "PARTS", "METHODS", "run_study", "study_tree", "structure_for"]
+
+#: From this airspeed (kt) up the forward-flight structure and coherence admission are used.
+FORWARD_FLIGHT_KT = 30.0
 
 #: The study's coherence admission in hover: the paper's 0.6 guideline (the library default),
 #: checked by 2311 verification (docs/notes/2026-11-24-study-coherence-admission.md).
@@ -47,6 +83,14 @@ FD_COHERENCE_MIN_HOVER = COHERENCE_MIN
 #: In forward flight (`forward_6dof`, 80 kt) points down to coherence 0.4 are admitted, with
 #: W_gamma weighting the weak ones down: at 0.6 the 80-kt fit ran away (same note).
 FD_COHERENCE_MIN_FORWARD = 0.4
+
+#: The identification methods of the study, as stored under ``/models/<method>``.
+METHODS = ("frequency_domain", "time_domain")
+
+
+def structure_for(airspeed_kt: float) -> str:
+    """The built-in structure used at ``airspeed_kt`` when none is named."""
+    return "hover_6dof" if airspeed_kt < FORWARD_FLIGHT_KT else "forward_6dof"
 
 
 @dataclass
@@ -69,8 +113,6 @@ class StudySettings:
     @property
     def fd_coherence(self) -> float:
         """The coherence admission the frequency-domain fit uses (resolves None)."""
-        from sysid.pipeline.batch import FORWARD_FLIGHT_KT  # where the structures change, too
-
         if self.fd_coherence_min is not None:
             return float(self.fd_coherence_min)
         if self.airspeed_kt < FORWARD_FLIGHT_KT:
@@ -91,25 +133,16 @@ def _key(*parts) -> str:
 def _group_key(path: Path, group: str) -> str | None:
     """The cache key stamped on ``group``; None when the file or the group is missing or the
     file is unreadable (the stage then runs and rewrites it)."""
-    from sysid.data.netcdf import group_attrs
-
     attrs = group_attrs(path, group)
     return None if attrs is None else attrs.get("workflow_key")
 
 
-def _stamp(path: Path, group: str, key: str, elapsed_s: float) -> None:
-    from sysid.data.netcdf import set_group_attrs
-
-    set_group_attrs(path, group, {"workflow_key": key,
-                                  "workflow_elapsed_s": round(float(elapsed_s), 2)})
-
-
-def _cli(*args: str) -> None:
-    from sysid.cli import main
-
-    status = main([str(a) for a in args])
-    if status != 0:
-        raise SysidError(f"stage 'sysid {args[0]}' failed (exit status {status})")
+def _stamped(node: xr.Dataset | xr.DataTree, key: str, elapsed_s: float):
+    """``node`` with the cache stamp in its attributes (a copy)."""
+    stamp = {"workflow_key": key, "workflow_elapsed_s": round(float(elapsed_s), 2)}
+    node = node.copy()
+    node.attrs.update(stamp)
+    return node
 
 
 #: The study's parts, in the order :func:`run_study` runs them. ``data`` is the campaign and
@@ -121,25 +154,26 @@ PARTS = ("data", "frequency_domain", "time_domain", "results")
 
 
 def run_study(out_dir: str | Path, settings: StudySettings | None = None, *,
-              quiet: bool = False, parts: tuple[str, ...] | list[str] = PARTS) -> Path | None:
+              quiet: bool = False, parts: tuple[str, ...] | list[str] = PARTS,
+              log: TextIO | None = None) -> Path | None:
     """Run the study at one flight condition; return the report path.
 
     ``parts`` (a subset of :data:`PARTS`) runs only those parts, each reusing what the parts
     before it stored (a part whose inputs are not stored yet computes them first). Returns
-    ``None`` when ``results`` is not among them.
+    ``None`` when ``results`` is not among them. The stages' tables (identification,
+    verification, comparison, validation) go to ``log`` when given, else to standard output
+    unless ``quiet``; progress lines go to ``log`` or standard error unless ``quiet``.
 
     Examples
     --------
     >>> from sysid.pipeline.study import StudySettings, run_study
-    >>> run_study("reports/hover_seed1", StudySettings(seed=1))   # the report's path
+    >>> run_study("reports/hover_seed1", StudySettings(seed=1))   # doctest: +SKIP
     """
-    from sysid.core.util import blas_threads
-
     unknown = [p for p in parts if p not in PARTS]
     if unknown:
         raise SysidError(f"run_study: unknown part(s) {unknown}; expected some of {PARTS}")
     with blas_threads():
-        study = _Study(out_dir, settings or StudySettings(), quiet=quiet)
+        study = _Study(out_dir, settings or StudySettings(), quiet=quiet, log=log)
         report = None
         for part in PARTS:
             if part in parts:
@@ -151,19 +185,17 @@ class _Study:
     """The stages of :func:`run_study`. Every stage's cache key hashes its settings and the
     keys of the stages it reads, so each key is known without running anything."""
 
-    def __init__(self, out_dir: str | Path, settings: StudySettings, *, quiet: bool):
-        from sysid import truth as fmu
-        from sysid.flight_test.campaign import Campaign, default_campaign
-        from sysid.models import structure_path
-
+    def __init__(self, out_dir: str | Path, settings: StudySettings, *, quiet: bool,
+                 log: TextIO | None = None):
         self.settings = settings
         self.out = Path(out_dir)
         self.out.mkdir(parents=True, exist_ok=True)
         self.path = self.out / "campaign.nc"
         self.quiet = quiet
-        self.quiet_flag = ["--quiet"] if quiet else []
-        self.progress = Progress(quiet=quiet)
-        self.fmu_path = fmu.build_fmu()
+        self.progress = Progress(quiet=quiet, stream=log if log is not None else sys.stderr)
+        self.log = log if log is not None else (None if quiet else sys.stdout)
+        self._campaign_data: CampaignData | None = None
+        self.fmu_path = build_fmu()
         if settings.campaign_file:
             self.campaign = Campaign.from_toml(settings.campaign_file)
         else:
@@ -179,106 +211,196 @@ class _Study:
         # result, so that the two identifications are independent.
         self.key_td = _key("td", self.key_campaign, structure, settings.time_domain_maneuvers)
         self.key_models = _key(self.key_fd, self.key_td)
+        self.fit_keys = {"frequency_domain": self.key_fd, "time_domain": self.key_td}
 
-    def stage(self, name: str, group: str, key: str, work) -> None:
-        stored = _group_key(self.path, group)
+    # -- helpers
+    def print(self, text: str) -> None:
+        """A stage's table to the study's log (nothing when quiet without a log)."""
+        if self.log is not None:
+            print(text, file=self.log, flush=True)
+
+    @property
+    def campaign_data(self) -> CampaignData:
+        """The campaign as stored: read once, then kept in step with this study's writes."""
+        if self._campaign_data is None:
+            self._campaign_data = CampaignData(read_campaign(self.path), source=str(self.path))
+        return self._campaign_data
+
+    def write(self, groups: Mapping[str, xr.Dataset | xr.DataTree]) -> None:
+        """Write ``groups`` to the campaign file at once and keep the copy in memory."""
+        update_campaign_groups(self.path, groups)
+        if self._campaign_data is not None:
+            self._campaign_data = self._campaign_data.with_groups(groups)
+
+    def fit_path(self, method: str) -> Path:
+        return self.out / f"model_{method}.nc"
+
+    def stage(self, name: str, path: Path, group: str, key: str,
+              work: Callable[[], dict]) -> dict | None:
+        """Run ``work`` unless ``group`` of ``path`` holds ``key``; return its groups
+        (``{group path: Dataset or DataTree}``) with ``group`` stamped, or None if cached."""
+        stored = _group_key(path, group)
         if stored == key:
             self.progress.message(f"[sysid] {name}: cached")
-            return
+            return None
         if stored is not None:
             self.progress.message(f"[sysid] {name}: inputs changed, recomputing")
         start = time.perf_counter()
         with self.progress.stage(name):
-            work()
-        _stamp(self.path, group, key, time.perf_counter() - start)
+            groups = dict(work())
+        elapsed = time.perf_counter() - start
+        if group in groups:
+            groups[group] = _stamped(groups[group], key, elapsed)
+        else:  # the whole tree ("/"): stamp its node ``group``
+            groups["/"][group].attrs.update(_stamped(xr.Dataset(), key, elapsed).attrs)
+        return groups
 
-    def needs(self, group: str, key: str, part: str) -> None:
-        """Run ``part`` first unless ``group`` already holds the result of key ``key``."""
-        if _group_key(self.path, group) != key:
-            getattr(self, part)()
+    def fitted(self, method: str) -> bool:
+        """Whether the campaign or the fit's own file holds the model of the current key."""
+        key = self.fit_keys[method]
+        return (_group_key(self.path, f"models/{method}") == key
+                or _group_key(self.fit_path(method), f"models/{method}") == key)
 
     # 1-2. Campaign (trim and linearisation included) on the truth FMU; conditioned
     #      composite responses, and the unconditioned ones for comparison.
     def data(self) -> None:
-        from sysid.spectral.response import siso_frequency_response
-        from sysid.data.campaign import maneuvers
-        from sysid.data.netcdf import read_campaign, update_campaign
-        from sysid.flight_test.campaign import run_campaign
-        from sysid.spectral.cross_control import campaign_summary
-        from sysid.core.units import CONTROLS, STATES_6DOF
+        settings = self.settings
 
-        self.stage("campaign", "maneuvers", self.key_campaign,
-                   lambda: run_campaign(self.campaign, self.path, quiet=self.quiet,
-                                        fmu=self.fmu_path, summaries=[campaign_summary]))
+        def fly() -> dict:
+            return {"/": run_campaign(self.campaign, quiet=self.quiet, fmu=self.fmu_path,
+                                      summaries=[campaign_summary])}
 
-        def responses():
-            _cli("frequency-response", self.path, "--inputs", ",".join(CONTROLS),
-                 "--outputs", ",".join(STATES_6DOF), "--maneuvers",
-                 self.settings.sweep_maneuvers, *self.quiet_flag)
-            records = maneuvers(read_campaign(self.path), self.settings.sweep_maneuvers)
-            siso = siso_frequency_response(records, CONTROLS, STATES_6DOF)
-            update_campaign(self.path, "frequency_response_siso", siso)
+        flown = self.stage("campaign", self.path, "maneuvers", self.key_campaign, fly)
+        if flown is not None:
+            # A new campaign replaces the file and everything derived from the old one.
+            write_campaign(flown["/"], self.path)
+            self._campaign_data = CampaignData(flown["/"], source=str(self.path))
 
-        self.stage("frequency responses", "frequency_response", self.key_fr, responses)
+        def responses() -> dict:
+            records = self.campaign_data.maneuvers(settings.sweep_maneuvers)
+            self.progress.message(f"[sysid] frequency response from {len(records)} "
+                                  f"record(s): {', '.join(records)}")
+            composite = frequency_response(records, CONTROLS, STATES_6DOF,
+                                           progress=self.progress)
+            self.print(format_coherent_ranges(composite))
+            siso = siso_frequency_response(list(records.values()), CONTROLS, STATES_6DOF)
+            return {"frequency_response": composite, "frequency_response_siso": siso}
+
+        groups = self.stage("frequency responses", self.path, "frequency_response",
+                            self.key_fr, responses)
+        if groups is not None:
+            self.write(groups)
+
+    def needs_data(self, group: str, key: str) -> None:
+        """Run the data part first unless ``group`` already holds the result of ``key``."""
+        if _group_key(self.path, group) != key:
+            self.data()
+
+    # 3-4. The two identifications, each into its own file (see the module docstring).
+    def fit(self, method: str, name: str, work: Callable[[], object]) -> None:
+        if self.fitted(method):
+            self.progress.message(f"[sysid] {name}: cached")
+            return
+
+        def run() -> dict:
+            result = work()
+            self.print(result.table())
+            return {f"models/{method}": result.model}
+
+        groups = self.stage(name, self.fit_path(method), f"models/{method}",
+                            self.fit_keys[method], run)
+        if groups is not None:
+            write_campaign(xr.DataTree.from_dict(groups), self.fit_path(method))
 
     # 3. Frequency-domain identification with model reduction.
     def frequency_domain(self) -> None:
         settings = self.settings
-        self.needs("frequency_response", self.key_fr, "data")
-        self.stage("frequency-domain identification", "models/frequency_domain", self.key_fd,
-                   lambda: _cli("identify", self.path, "--structure", settings.structure,
-                                "--coherence-min", settings.fd_coherence,
-                                *self.quiet_flag))
+        self.needs_data("frequency_response", self.key_fr)
+        self.fit("frequency_domain", "frequency-domain identification",
+                 lambda: fit_frequency_domain(self.campaign_data, structure=settings.structure,
+                                              coherence_min=settings.fd_coherence,
+                                              progress=self.progress))
 
     # 4. Time-domain identification on the multisteps, started from the linearisation.
     def time_domain(self) -> None:
         settings = self.settings
-        self.needs("maneuvers", self.key_campaign, "data")
-        self.stage("time-domain identification", "models/time_domain", self.key_td,
-                   lambda: _cli("identify-time", self.path, "--maneuvers",
-                                settings.time_domain_maneuvers, "--structure",
-                                settings.structure, "--start", "linearization",
-                                *self.quiet_flag))
+        self.needs_data("maneuvers", self.key_campaign)
+        self.fit("time_domain", "time-domain identification",
+                 lambda: fit_time_domain(self.campaign_data,
+                                         maneuvers=settings.time_domain_maneuvers,
+                                         structure=settings.structure, start="linearization",
+                                         progress=self.progress))
+
+    def merge_models(self) -> None:
+        """Both fits' models into the campaign file, in one write (only what changed)."""
+        for method in METHODS:  # the parts are named after the methods
+            if not self.fitted(method):
+                getattr(self, method)()
+        stale = {}
+        for method in METHODS:
+            if _group_key(self.path, f"models/{method}") != self.fit_keys[method]:
+                stored = read_campaign(self.fit_path(method))
+                stale[f"models/{method}"] = stored[f"models/{method}"].to_dataset()
+        if stale:
+            self.write(stale)
 
     # 5-8. Verification, comparison, export and validation, report.
     def results(self) -> Path:
-        from sysid.data.netcdf import read_campaign
-        from sysid.report.html import write_report
+        settings, out = self.settings, self.out
+        self.merge_models()
 
-        settings, path, out = self.settings, self.path, self.out
-        self.needs("models/frequency_domain", self.key_fd, "frequency_domain")
-        self.needs("models/time_domain", self.key_td, "time_domain")
         # 5. Verification of both models on manoeuvres neither was fitted to.
-        verify_key = _key("verify", self.key_models, settings.verification_maneuvers)
-        first_verified = f"verification/{_first(path, settings.verification_maneuvers)}"
-        self.stage("verification", first_verified, verify_key,
-                   lambda: _cli("verify", path, "--model", "frequency_domain,time_domain",
-                                "--maneuvers", settings.verification_maneuvers,
-                                *self.quiet_flag))
+        def verification() -> dict:
+            checked = verify_models(self.campaign_data, models=METHODS,
+                                    maneuvers=settings.verification_maneuvers,
+                                    progress=self.progress)
+            for ds in checked.values():
+                self.print(verification_table(ds))
+            return {"verification": xr.Dataset(),
+                    **{f"verification/{name}": ds for name, ds in checked.items()}}
+
+        self.save(self.stage("verification", self.path, "verification",
+                             _key("verify", self.key_models, settings.verification_maneuvers),
+                             verification))
+
         # 6. Derivative comparison (Tables 2-3).
-        self.stage("domain comparison", "comparison", _key("compare", self.key_models),
-                   lambda: _cli("compare", path, "--csv", out / "comparison.csv"))
+        def comparison() -> dict:
+            table = compare_models(self.campaign_data)
+            self.print(format_table(table))
+            self.print(format_sign_agreement(table))
+            write_table_csv(table, out / "comparison.csv")
+            return {"comparison": table}
+
+        self.save(self.stage("domain comparison", self.path, "comparison",
+                             _key("compare", self.key_models), comparison))
+
         # 7. Export both models as FMUs and validate them against the truth FMU and the data.
-        self.stage("FMU export and validation", "validation",
-                   _key("validate", self.key_models),
-                   lambda: _cli("validate", path, "--fmu-dir", out, *self.quiet_flag))
+        def validation() -> dict:
+            truth, trim = truth_reference(self.campaign_data)
+            if truth is None:
+                self.print(f"time-domain comparison with the truth FMU: {trim}")
+                trim = None
+            checked = validate_models(self.campaign_data, fmu_dir=out, truth=truth, trim=trim,
+                                      quiet=self.quiet)
+            self.print(format_validation(checked))
+            groups = {f"validation/{name}": ds for name, ds in checked.items()}
+            if all("error" in ds.attrs for ds in checked.values()):
+                self.write(groups)  # stored for the report, but not stamped: re-run next time
+                raise SysidError("no model could be validated: " + "; ".join(
+                    f"{name}: {ds.attrs['error']}" for name, ds in checked.items()))
+            return {"validation": xr.Dataset(), **groups}
+
+        self.save(self.stage("FMU export and validation", self.path, "validation",
+                             _key("validate", self.key_models), validation))
         # 8. Report (always rewritten: cheap); it lists each stage's stamped time.
         with self.progress.stage("report"):
-            return write_report(read_campaign(path), out, quiet=self.quiet)
+            return write_report(self.campaign_data.tree, out, quiet=self.quiet)
 
-
-def _first(path: Path, pattern: str) -> str:
-    from sysid.data.campaign import list_maneuvers
-    from sysid.data.netcdf import read_campaign
-
-    names = list_maneuvers(read_campaign(path), pattern)
-    if not names:
-        raise SysidError(f"no manoeuvre in {path} matches {pattern!r} for verification")
-    return names[0]
+    def save(self, groups: dict | None) -> None:
+        if groups is not None:
+            self.write(groups)
 
 
 def study_tree(out_dir: str | Path) -> xr.DataTree:
     """The campaign DataTree a study wrote (for scripts and tests)."""
-    from sysid.data.netcdf import read_campaign
-
     return read_campaign(Path(out_dir) / "campaign.nc")

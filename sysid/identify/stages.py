@@ -1,0 +1,133 @@
+"""Identification stages on a campaign: its data in, a fitted model out, nothing written.
+
+The two fits of the study read what a campaign holds (:class:`sysid.data.campaign.
+CampaignData`): the frequency-domain fit its composite responses ``/frequency_response``, the
+time-domain fit its manoeuvres; both take the trim from the ``trim_<channel>`` attributes and
+their start values from the campaign (:func:`start_values`). They return the fit result,
+whose ``model`` Dataset (``docs/data_model.md``) the caller stores as ``/models/<method>``
+(the ``sysid identify`` commands and :func:`sysid.pipeline.study.run_study` do).
+
+Example
+-------
+>>> from sysid.data.campaign import CampaignData                      # doctest: +SKIP
+>>> data = CampaignData.read("campaign.nc")                            # doctest: +SKIP
+>>> result = fit_frequency_domain(data, structure="hover_6dof")        # doctest: +SKIP
+>>> print(result.table())                                              # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import xarray as xr
+
+from sysid.core.errors import InputDataError
+from sysid.core.guidelines import COHERENCE_MIN
+from sysid.core.util import Progress
+from sysid.data.campaign import CampaignData
+from sysid.identify.frequency_domain import (N_POINTS, FrequencyFitResult,
+                                             identify_frequency_domain)
+from sysid.identify.time_domain import TimeFitResult, identify_time_domain
+from sysid.models import LinearStructure, load_structure
+
+__all__ = ["FREQUENCY_DOMAIN_STARTS", "TIME_DOMAIN_STARTS", "start_values",
+           "fit_frequency_domain", "fit_time_domain"]
+
+#: Start-value choices of the frequency-domain fit: the campaign's ``/linearization`` when
+#: it has one (``auto``), that linearisation or an error (``linearization``), the
+#: frequency-domain equation error (``equation-error``), the structure's own values.
+FREQUENCY_DOMAIN_STARTS = ("auto", "linearization", "equation-error", "structure")
+#: Start-value choices of the time-domain fit: ``auto`` takes ``/models/frequency_domain``,
+#: else ``/linearization``, else the structure's values; the others insist on one of them.
+TIME_DOMAIN_STARTS = ("auto", "frequency_domain", "linearization", "structure")
+
+
+def start_values(data: CampaignData, structure: LinearStructure, kind: str, *,
+                 fit: str, progress: Progress | None = None
+                 ) -> xr.Dataset | np.ndarray | None:
+    """Start values of a fit chosen by ``kind`` from what the campaign holds.
+
+    ``fit`` is ``"frequency_domain"`` (choices :data:`FREQUENCY_DOMAIN_STARTS`) or
+    ``"time_domain"`` (:data:`TIME_DOMAIN_STARTS`). Returns a model Dataset (a stored model
+    or the truth linearisation over the structure's states), the structure's parameter
+    vector, or None for the fit's own default (equation error in the frequency domain, the
+    structure's values in the time domain). A start that ``kind`` insists on and the
+    campaign lacks raises :class:`~sysid.core.errors.InputDataError`.
+    """
+    progress = progress or Progress(quiet=True)
+    choices = FREQUENCY_DOMAIN_STARTS if fit == "frequency_domain" else TIME_DOMAIN_STARTS
+    if fit not in ("frequency_domain", "time_domain") or kind not in choices:
+        raise InputDataError(f"start values {kind!r} for the {fit} fit: expected one of "
+                             f"{choices}")
+    label = "identify" if fit == "frequency_domain" else "identify-time"
+    if fit == "time_domain" and kind in ("auto", "frequency_domain"):
+        if data.has("models/frequency_domain"):
+            progress.message(f"[sysid] {label}: start values from /models/frequency_domain")
+            return data.tree["models/frequency_domain"].to_dataset()
+        if kind == "frequency_domain":
+            raise InputDataError(f"campaign {data.source} has no /models/frequency_domain; "
+                                 f"run 'sysid identify' first or choose another --start")
+    if kind in ("auto", "linearization"):
+        lin = data.linearization(structure.states)
+        if lin is not None:
+            progress.message(f"[sysid] {label}: start values from /linearization")
+            return lin
+        if kind == "linearization":
+            raise InputDataError(f"campaign {data.source} has no /linearization model over "
+                                 f"the states {list(structure.states)}")
+    if fit == "frequency_domain" and kind == "structure":
+        return structure.theta0
+    return None
+
+
+def fit_frequency_domain(data: CampaignData, *, structure: str = "hover_6dof",
+                         start: str = "auto", pairs=None,
+                         coherence_min: float = COHERENCE_MIN, n_points: int = N_POINTS,
+                         fallback_coherence_min: float | None = None,
+                         frequency_range: tuple[float, float] | None = None,
+                         reduce: bool = True, seed: int = 0,
+                         progress: Progress | None = None) -> FrequencyFitResult:
+    """Frequency-domain identification of a campaign's composite responses.
+
+    ``structure`` is a built-in name or a TOML file, loaded about the campaign's trim
+    (:meth:`CampaignData.trim`); ``start`` one of :data:`FREQUENCY_DOMAIN_STARTS`; the other
+    options are those of :func:`sysid.identify.frequency_domain.identify_frequency_domain`.
+    The result's ``model`` records the campaign in attribute ``campaign_file``.
+    """
+    fr = data.frequency_response()
+    if fr is None:
+        raise InputDataError(f"campaign {data.source} has no /frequency_response group; "
+                             f"compute the composite frequency responses first")
+    loaded = load_structure(structure, trim=data.trim())
+    result = identify_frequency_domain(
+        fr, loaded, pairs=pairs,
+        start=start_values(data, loaded, start, fit="frequency_domain", progress=progress),
+        frequency_range=frequency_range, fallback_coherence_min=fallback_coherence_min,
+        coherence_min=coherence_min, n_points=n_points, reduce=reduce, seed=seed,
+        progress=progress)
+    result.model.attrs["campaign_file"] = data.source
+    return result
+
+
+def fit_time_domain(data: CampaignData, *, maneuvers: str = "*",
+                    structure: str = "hover_6dof", start: str = "auto",
+                    outputs: Sequence[str] | None = None, biases: bool = True,
+                    initial_state: bool = True, reduce: bool = True,
+                    progress: Progress | None = None) -> TimeFitResult:
+    """Time-domain output-error identification on the manoeuvres matching ``maneuvers``.
+
+    ``structure`` is loaded about the selected manoeuvres' trim; ``start`` is one of
+    :data:`TIME_DOMAIN_STARTS`; the other options are those of
+    :func:`sysid.identify.time_domain.identify_time_domain`. The result's ``model`` records
+    the campaign in attribute ``campaign_file``.
+    """
+    records = list(data.maneuvers(maneuvers).values())
+    loaded = load_structure(structure, trim=data.trim(maneuvers))
+    result = identify_time_domain(
+        records, loaded,
+        start=start_values(data, loaded, start, fit="time_domain", progress=progress),
+        outputs=outputs, biases=biases, initial_state=initial_state, reduce=reduce,
+        progress=progress)
+    result.model.attrs["campaign_file"] = data.source
+    return result
