@@ -1,8 +1,9 @@
 """sysid.pipeline.batch: many flight conditions on a Dask LocalCluster, fault tolerance, resume.
 
 The default run flies one reduced (``quick``) 100-kt condition, one impossible one (400 kt:
-the trim refuses it) and one with an injected divergence on a 2-worker LocalCluster (one
-study takes about a minute of CPU); the exhaustive form
+the trim refuses it), one with an injected divergence and one whose identification stages
+fail on a structure file with a typo (its exception must reach batch.nc) on a 2-worker
+LocalCluster (one study takes about a minute of CPU); the exhaustive form
 (SYSID_EXHAUSTIVE=1) runs the issue's six full-size conditions plus the failing one.
 Numbers are checked against the truth model's own linearisation, not against the code's
 output.
@@ -96,7 +97,17 @@ def test_batch_on_local_cluster_survives_a_failing_condition(tmp_path, truth_fmu
     bad = Condition(400.0, quick=True)  # outside the flight envelope: trim refuses it
     # And a condition whose simulation "diverges" (injected inside its task).
     diverging = Condition(20.0, quick=True)
-    result = run_batch(good + [bad, diverging], tmp_path, n_workers=2, quiet=True,
+    # And one whose identification stages fail for real: its structure file has a typo that
+    # only loading the structure (inside both fits, after the data part) finds.
+    from sysid.models import structure_path
+
+    typo = tmp_path / "typo" / "hover_typo.toml"
+    typo.parent.mkdir()
+    typo.write_text(structure_path("hover_6dof").read_text().replace(
+        "N_r = { value = -0.3185 }", "N_r = { valeu = -0.3185 }"))
+    broken = Condition(20.0, quick=True, structure=str(typo))
+    everything = good + [bad, diverging, broken]
+    result = run_batch(everything, tmp_path, n_workers=2, quiet=True,
                        inject_failure={diverging.name: "SimulationDiverged"})
     assert result.dataset.status.sel(condition=diverging.name) == "failed"
     assert "SimulationDiverged" in str(result.dataset.error.sel(condition=diverging.name).values)
@@ -104,12 +115,19 @@ def test_batch_on_local_cluster_survives_a_failing_condition(tmp_path, truth_fmu
     status = dict(zip(ds.condition.values, ds.status.values))
     assert status[bad.name] == "failed"
     assert "400" in str(ds.error.sel(condition=bad.name).values)
+    # The failing stage's own exception, type and message, not "stage ... failed (exit
+    # status 1)": the stages are library calls inside the task.
+    assert status[broken.name] == "failed"
+    error = str(ds.error.sel(condition=broken.name).values)
+    assert error.startswith("InputDataError: structure ") and "['valeu']" in error, error
+    assert "exit status" not in error
     done = [c for c in good if status[c.name] == "ok"]
     assert {c.name for c in good} == {c.name for c in done}, \
         {str(k): str(v) for k, v in zip(ds.condition.values, ds.error.values)}
-    # Written atomically and readable by plain netCDF.
+    # Written atomically and readable by plain netCDF, the failing stage's message with it.
     on_disk = xr.open_dataset(tmp_path / "batch.nc")
-    assert on_disk.sizes["condition"] == len(good) + 2
+    assert on_disk.sizes["condition"] == len(good) + 3
+    assert str(on_disk.error.sel(condition=broken.name).values) == error
     on_disk.close()
     assert (tmp_path / "batch_derivatives.png").stat().st_size > 10_000
     # Truth linearisation present for every completed condition; signs of the dominant
@@ -124,7 +142,7 @@ def test_batch_on_local_cluster_survives_a_failing_condition(tmp_path, truth_fmu
     # Resume: a second run recomputes nothing that finished (only the failed condition).
     marker = json.loads((tmp_path / done[0].name / "condition.json").read_text())
     assert marker["status"] == "ok"
-    again = run_batch(good + [bad, diverging], tmp_path, n_workers=1, quiet=True,
+    again = run_batch(everything, tmp_path, n_workers=1, quiet=True,
                       inject_failure={diverging.name: "SimulationDiverged"})
     assert again.wall_time_s < result.wall_time_s / 2
     assert list(again.dataset.status.values) == list(ds.status.values)

@@ -8,7 +8,7 @@ results (verification, comparison, export, report)::
 
     <out>/<condition>/          the condition's study (campaign.nc, FMUs, report.html)
     <out>/<condition>/condition.json   what ran and how it ended (the resume marker)
-    <out>/<condition>/study_<part>.log the stages' printed tables, one log per part
+    <out>/<condition>/study_<part>.log the stages' tables, one log per part
     <out>/batch.nc              every condition's results on one ``condition`` dimension
     <out>/batch_derivatives.png every derivative against airspeed: identified values with
                                 Cramer-Rao bars, the truth linearisation overlaid
@@ -19,10 +19,15 @@ results (verification, comparison, export, report)::
 Where it runs: a :class:`distributed.LocalCluster` of ``n_workers`` processes with one thread
 each by default; with ``scheduler="tcp://host:port"`` the tasks go to that existing Dask
 scheduler instead (its workers need ``sysid`` installed and must see ``out`` at the same path,
-e.g. a shared file system).
+e.g. a shared file system). No file lock is needed across machines: within a condition the
+data part writes ``campaign.nc`` before the fits start, each fit writes its own
+``model_<method>.nc``, and the results part alone merges them (:mod:`sysid.pipeline.study`);
+different conditions use different folders.
 
 Fault tolerance: a task catches every exception of its condition (trim failure, diverging
-simulation, non-converging fit) and returns it as a failure record (error type and message),
+simulation, non-converging fit) and returns it as a failure record (the exception's type and
+first line of its message, e.g. ``IdentificationError: ...``; the stages are library calls,
+so that is the stage's own exception),
 so one bad condition never stops the others; a worker that dies is reported the same way.
 Resume: a condition whose folder holds a completed study with the same settings (its
 ``condition.json`` says ``ok`` and ``report.html`` exists) is not recomputed; a failed or

@@ -137,12 +137,9 @@ def _group_key(path: Path, group: str) -> str | None:
     return None if attrs is None else attrs.get("workflow_key")
 
 
-def _stamped(node: xr.Dataset | xr.DataTree, key: str, elapsed_s: float):
-    """``node`` with the cache stamp in its attributes (a copy)."""
-    stamp = {"workflow_key": key, "workflow_elapsed_s": round(float(elapsed_s), 2)}
-    node = node.copy()
-    node.attrs.update(stamp)
-    return node
+def _stamp(key: str, elapsed_s: float) -> dict:
+    """The cache stamp a stage puts in its group's attributes."""
+    return {"workflow_key": key, "workflow_elapsed_s": round(float(elapsed_s), 2)}
 
 
 #: The study's parts, in the order :func:`run_study` runs them. ``data`` is the campaign and
@@ -248,11 +245,12 @@ class _Study:
         start = time.perf_counter()
         with self.progress.stage(name):
             groups = dict(work())
-        elapsed = time.perf_counter() - start
+        stamp = _stamp(key, time.perf_counter() - start)
         if group in groups:
-            groups[group] = _stamped(groups[group], key, elapsed)
+            groups[group] = groups[group].copy()
+            groups[group].attrs.update(stamp)
         else:  # the whole tree ("/"): stamp its node ``group``
-            groups["/"][group].attrs.update(_stamped(xr.Dataset(), key, elapsed).attrs)
+            groups["/"][group].attrs.update(stamp)
         return groups
 
     def fitted(self, method: str) -> bool:
