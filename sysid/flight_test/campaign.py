@@ -13,9 +13,10 @@ Stabilisation (``Stabilisation``)
     collective, and a weak hold on the excited axis so long-period cycles stay bounded. Gains
     are designed from the truth model's quasi-steady linearisation at the flight condition:
     each loop is ``delta = -(K_x x + K_rate x_dot) / control_derivative`` with the attitude loop
-    crossover at ``crossover`` rad/s (default 1.0, the top of the paper's 0.3-1 rad/s range), so signs and
-    scaling follow the FMU's control gearing without hand tuning. In ``conditional`` mode a loop
-    acts only on the part of its error outside a dead band (the paper's "conditional" variant).
+    crossover at ``crossover`` rad/s (default 1.0, the top of the paper's 0.3-1 rad/s range),
+    so signs and scaling follow the FMU's control gearing without hand tuning. In
+    ``conditional`` mode a loop acts only on the part of its error outside a dead band (the
+    paper's "conditional" variant).
 
 What is recorded is what was applied: the sum of trim, excitation and stabilisation commands,
 clipped to 0-100 % of travel like the FMU's own saturation.
@@ -63,7 +64,8 @@ DEFAULT_NOISE = {
 KINDS = ("sweep", "3211", "2311", "doublet", "multisine")
 
 #: Amplitude factors of the default campaign against airspeed, ``{axis: ((kt, factor), ...)}``,
-#: interpolated linearly and held beyond the last point (see default_campaign).
+#: interpolated linearly and held beyond the last point
+#: (measurements: docs/notes/2026-11-24-campaign-amplitudes-and-holds.md).
 FORWARD_FLIGHT_AMPLITUDE = {"lon": ((0.0, 1.0), (80.0, 0.5), (100.0, 0.25)),
                             "col": ((0.0, 1.0), (80.0, 0.6)),
                             "ped": ((0.0, 1.0), (80.0, 0.6))}
@@ -123,20 +125,15 @@ class Stabilisation:
     """Low-frequency secondary-axis holds (see module docstring)."""
 
     enabled: bool = True
-    #: Attitude/heading loop crossover, rad/s. 1 rad/s, the top of the paper's 0.3-1 range:
-    #: the truth model's strong pitch-roll coupling (L_lon ~ -0.6 L_lat) leaves the hover
-    #: pitch/roll oscillation unstable with single-axis holds at 0.5 rad/s (checked on the
-    #: quasi-steady linearisation in tests/test_maneuvers.py).
+    #: Attitude/heading loop crossover, rad/s: the top of the paper's 0.3-1 range (lower
+    #: leaves the hover pitch-roll oscillation unstable; docs/notes, "campaign amplitudes").
     crossover: float = 1.0
-    #: Heading-hold crossover, rad/s. Yaw is stable in hover, so the pedal loop only needs to
-    #: stop heading drift; a low crossover keeps pedal from tracking the torque reaction of
-    #: collective sweeps, which would make col and ped collinear near 1-2 rad/s.
+    #: Heading-hold crossover, rad/s: low, so pedal does not track the torque reaction of
+    #: collective sweeps (col and ped would become collinear).
     heading_crossover: float = 0.3
     vertical_speed_bandwidth: float = 0.3  #: rad/s
-    #: Crossover of the weaker hold on the excited axis, relative to ``crossover``. Measured on
-    #: the default hover campaign: weaker holds let hover sweeps drift to 20 ft/s and 20 deg,
-    #: where the rotor leaves the hover regime and the on-axis coherence near 1 rad/s falls
-    #: below 0.8 (nonlinearity, not noise: it does not improve with less turbulence).
+    #: Crossover of the weaker hold on the excited axis, relative to ``crossover`` (weaker
+    #: holds let sweeps drift out of the hover regime).
     primary_fraction: float = 0.8
     #: Outer u/v -> attitude reference gain (the reference moves ``velocity_hold/2`` deg per
     #: ft/s against the drift; 0 disables it).
@@ -259,30 +256,11 @@ def default_campaign(airspeed_kt: float = 0.0, *, noise: bool = True, seed: int 
     sensor noise levels and light turbulence (0.3 m/s rms) are on.
     """
     amplitude = {"lon": 5.0, "lat": 8.0, "col": 10.0, "ped": 8.0}
-    # Forward flight: pitch, heave and sideslip respond far more strongly to lon, col and ped
-    # than in hover (M_w, M_col and the weathercock stiffness grow with speed). Measured at
-    # 80 kt on the truth FMU with the hover amplitudes, the lon sweeps reached 35 deg of pitch
-    # and 60 ft/s of speed change (diverging with the velocity hold on); with lon x0.5,
-    # col x0.6, ped x0.6 they stay near 17 deg / 22 ft/s. At 100 kt (airframe pitch-heave
-    # poles +0.37 and +0.17 /s) lon x0.5 still reached 29 deg and 61 ft/s; x0.25 keeps the
-    # lon sweeps within 15 deg / 28 ft/s. See FORWARD_FLIGHT_AMPLITUDE.
+    # Amplitudes, schedules and holds: docs/notes/2026-11-24-campaign-amplitudes-and-holds.md.
     for axis, points in FORWARD_FLIGHT_AMPLITUDE.items():
         amplitude[axis] *= _schedule(points, max(airspeed_kt, 0.0))
-    # Amplitude schedule (fraction at 0.1 rad/s, full from rad/s): the hingeless rotor's pitch
-    # and roll control power would drive attitudes far beyond +-30 deg at 0.1 rad/s. It also
-    # flattens the input autospectrum per rad/s, which a constant-amplitude sweep cannot keep
-    # within 10 dB of its median (the long-period dwell and the slow start of the exponential
-    # put +18 dB at the bottom): every sweep here stays within -10/+9 dB over 0.1-20 rad/s
-    # (collective at 0.5 reached +11.6 dB at 0.1 rad/s; tests/test_inputs.py).
-    # Schedule: fraction at 0.1 rad/s, rad/s from which the amplitude is full, exponent of
-    # the rise in log-frequency (1 = linear). In hover the lateral rise is cubic
-    # (0.15, 1.2, 3): the lateral sweep then stays small near the unstable pitch-roll
-    # oscillation (0.3-0.5 rad/s), where at full amplitude the truth leaves its linear range
-    # and the conditioned q/lon left MUAD (91 % inside on the default seed; 100 % with the
-    # cubic rise, and on 8 of 8 seeds measured earlier, linear 2 of 6). It once cost the
-    # frequency-domain fit its tau_L_lon (27 ms); with N_w and the speed derivatives kept in
-    # `hover_6dof` the cyclic delays stay at 70-96 ms. Forward flight keeps the linear rise
-    # it was measured with.
+    # Schedule: fraction of the amplitude at 0.1 rad/s, rad/s from which it is full, exponent
+    # of the rise in log-frequency (1 = linear); cubic lateral rise in hover only.
     lateral = HOVER_LATERAL_RISE if airspeed_kt == 0 else LINEAR_LATERAL_RISE
     schedule = {"lon": (0.1, 1.5, 1.0), "lat": lateral, "col": (0.3, 1.5, 1.0),
                 "ped": (0.2, 1.5, 1.0)}
@@ -300,14 +278,8 @@ def default_campaign(airspeed_kt: float = 0.0, *, noise: bool = True, seed: int 
                                       duration=7 * base_width[axis], base_width=base_width[axis],
                                       lead_in=2.0, lead_out=6.0))
     name = "hover" if airspeed_kt == 0 else f"forward_{airspeed_kt:g}kt"
-    # The outer u/v -> attitude loop holds position drift in hover; in forward flight the
-    # attitude hold already holds speed, and the extra loop lowers the damping of the
-    # closed-loop pitch-heave mode (quasi-steady linearisation at 80 kt: from 0.18 to 0.11;
-    # the lon sweeps diverged with it), so it is off above hover.
-    # Above 80 kt the attitude holds cross over higher: at 100 kt, 1 rad/s leaves the
-    # lon-excited closed loop (full linearisation) with a pitch-heave mode at damping ratio
-    # 0.08 and the lon sweeps diverged near 95 s even at a fifth of their amplitude; 1.5 rad/s
-    # gives 0.14 and the campaign flies (closed_loop_modes, FORWARD_FLIGHT_CROSSOVER).
+    # Above hover: no outer u/v loop (it lowers the pitch-heave damping) and a crossover that
+    # rises with speed (FORWARD_FLIGHT_CROSSOVER).
     crossover = _schedule(FORWARD_FLIGHT_CROSSOVER, max(airspeed_kt, 0.0))
     stabilisation = (Stabilisation() if airspeed_kt == 0
                      else Stabilisation(velocity_hold=0.0, crossover=crossover))
@@ -341,9 +313,7 @@ def linear_regime_campaign(airspeed_kt: float = 0.0, *, seed: int = 20261121,
     amplitude q/lon already leaves the bound at 0.43-0.49 rad/s.
     """
     base = default_campaign(airspeed_kt, noise=noise, seed=seed).select("sweep_*")
-    # At half amplitude the lateral sweep needs no cubic rise to stay linear near the
-    # pitch-roll oscillation; with it, q/lon lost one point of MUAD at 0.56 rad/s on seed 3
-    # (-2.7 dB), with the linear rise none.
+    # Half amplitude needs no cubic lateral rise (docs/notes, "campaign amplitudes").
     fraction, full_omega, shape = LINEAR_LATERAL_RISE
     sweeps = [dataclasses.replace(m, amplitude=m.amplitude * LINEAR_REGIME_SCALE[m.axis])
               for m in base.maneuvers]

@@ -7,7 +7,8 @@ inline script, no external resources, so it opens offline -- plus every plot as 
 directory and moved into place at the end: a failure leaves no half-written report.
 
 Sections (each only when its groups exist; "not available" otherwise), with the items of
-the paper (*Comparison of frequency and time domain identification of a helicopter in hover*) they reproduce:
+the paper
+(*Comparison of frequency and time domain identification of a helicopter in hover*) they reproduce:
 
 ========================  ==========================================================
 section                   paper item, source groups
@@ -25,7 +26,8 @@ Model reduction           ``/models/<method>/reduction`` or the model's ``reduct
 Provenance                versions, seeds, FMU, campaign settings
 ========================  ==========================================================
 
-Guideline thresholds (:data:`GUIDELINES`, Tischler & Remple 2012; docs/methods.md, "Guidelines"):
+Guideline thresholds (:data:`sysid.core.guidelines.GUIDELINES`, Tischler & Remple 2012;
+docs/methods.md, "Guidelines"):
 ``J_ave <= 100``, every pair ``J <= 200``, Cramer-Rao bound ``<= 20 %``, insensitivity
 ``<= 10 %``, ``J_rms <= 2``, ``TIC <= 0.25``, composite coherence ``>= 0.6`` over the fitted
 range, cross-control coherence ``<= 0.5``.
