@@ -21,6 +21,17 @@ fit passes ``scale = 1/sigma^2`` (residual variance) or whitens its residuals be
 that H is the Fisher information; the frequency-domain fit uses the CIFER convention
 ``scale = 1`` (see :mod:`sysid.identify.frequency_domain`).
 
+Coloured residuals (time domain). ``H^-1`` is the covariance of the estimate only when the
+residuals are white. When they are coloured (unmodelled dynamics, turbulence),
+:func:`coloured_residual_covariance` gives the sandwich form of Morelli & Klein (1997), the
+correction SIDPAC's ``m_colores`` computes:
+
+    Cov(theta) = M^-1 [ sum_i sum_j S(i)^T R_vv(i - j) S(j) ] M^-1
+
+with ``S(i)`` the (whitened) output sensitivities at sample ``i``, ``M = sum_i S(i)^T S(i)``
+and ``R_vv`` the autocorrelation of the (whitened) residuals, its lag sum truncated and
+Bartlett-weighted (see the function).
+
 A parameter the data carry no information about (a zero Jacobian column, or a direction of
 ``theta`` the cost cannot see) is *unidentifiable*: its bound and insensitivity are ``inf`` and
 it is flagged, and the other parameters' bounds come from the pseudo-inverse restricted to the
@@ -33,11 +44,22 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
+import scipy.fft
 import xarray as xr
 
 from sysid.core.guidelines import CR_MAX_PERCENT, INSENSITIVITY_MAX_PERCENT
 
-__all__ = ["ParameterStatistics", "parameter_statistics", "correlated_pairs"]
+__all__ = ["ParameterStatistics", "parameter_statistics", "correlated_pairs",
+           "residual_autocorrelation", "correlation_lag", "coloured_residual_covariance",
+           "ColouredBounds", "guideline_mark"]
+
+#: Multiple of the white-noise standard error ``1/sqrt(N)`` of a normalised autocorrelation
+#: estimate below which the residual autocorrelation counts as decayed
+#: (:func:`correlation_lag`): 2 is the usual 95 % whiteness band (Klein & Morelli 2006, 5.5).
+WHITENESS_BAND = 2.0
+#: The Bartlett window of the lag sum spans this many times the decay lag: the lags inside
+#: the decay lag keep at least half their weight.
+LAG_WINDOW_FACTOR = 2.0
 
 #: Relative eigenvalue threshold of the normalised Hessian below which a direction is
 #: considered not identifiable (rank decision of the pseudo-inverse).
@@ -142,22 +164,63 @@ class FitResultParameters:
         return float(self.model["value"].sel(parameter=name))
 
 
+def guideline_mark(cramer_rao_percent: float, insensitivity_percent: float, *,
+                   cr_max: float = CR_MAX_PERCENT,
+                   insensitivity_max: float = INSENSITIVITY_MAX_PERCENT) -> str:
+    """The mark a parameter table puts beside a parameter that breaks an accuracy guideline:
+    ``"CR>20%"``, ``"I>10%"``, both (space-separated) or ``""`` (an infinite percentage, i.e.
+    unidentifiable or zero, breaks it too)."""
+    marks = []
+    if not cramer_rao_percent <= cr_max:
+        marks.append(f"CR>{cr_max:g}%")
+    if not insensitivity_percent <= insensitivity_max:
+        marks.append(f"I>{insensitivity_max:g}%")
+    return " ".join(marks)
+
+
 def parameter_rows(model, *, absolute_cr: bool = False) -> list[str]:
     """Table lines (header first) of the free parameters of a model Dataset: value,
-    optionally the absolute Cramer-Rao bound, CR % and insensitivity %, and an
-    ``unidentifiable`` flag; followed by one line listing the free delays in ms."""
+    optionally the absolute Cramer-Rao bound, CR %, the bound corrected for coloured residuals
+    (``CRc``, ``CRc %``; time-domain models that carry ``cramer_rao_corrected``) and
+    insensitivity %, then a mark where a parameter breaks the 20 % CR guideline (on the larger
+    of its bounds) or the 10 % insensitivity guideline (:func:`guideline_mark`), and an
+    ``unidentifiable`` flag; followed by a line saying what the marks mean and one listing
+    the free delays in ms."""
+    corrected = ("cramer_rao_corrected" in model
+                 and bool(np.isfinite(model["cramer_rao_corrected"].values).any()))
     head = f"{'parameter':<12}{'value':>14}" + (f"{'CR':>12}" if absolute_cr else "")
-    lines = [head + f"{'CR %':>9}{'I %':>9}"]
+    head += f"{'CR %':>9}"
+    if corrected:
+        head += (f"{'CRc':>12}" if absolute_cr else "") + f"{'CRc %':>9}"
+    lines = [head + f"{'I %':>9}  guidelines"]
     free = model["free"].values.astype(bool)
     names = [str(n) for n in model["parameter"].values]
+    marked = 0
     for k, name in enumerate(names):
         if not free[k]:
             continue
-        flag = "" if bool(model["identifiable"].values[k]) else "  unidentifiable"
-        cr = f"{float(model['cramer_rao'][k]):>12.4g}" if absolute_cr else ""
-        lines.append(f"{name:<12}{float(model['value'][k]):>14.5g}{cr}"
-                     f"{format_percent(float(model['cramer_rao_percent'][k])):>9}"
-                     f"{format_percent(float(model['insensitivity_percent'][k])):>9}{flag}")
+        cr_pct = float(model["cramer_rao_percent"][k])
+        in_pct = float(model["insensitivity_percent"][k])
+        row = f"{name:<12}{float(model['value'][k]):>14.5g}"
+        row += f"{float(model['cramer_rao'][k]):>12.4g}" if absolute_cr else ""
+        row += f"{format_percent(cr_pct):>9}"
+        worst = cr_pct
+        if corrected:
+            c_pct = float(model["cramer_rao_percent_corrected"][k])
+            row += (f"{float(model['cramer_rao_corrected'][k]):>12.4g}" if absolute_cr else "")
+            row += f"{format_percent(c_pct):>9}"
+            worst = max(cr_pct, c_pct) if np.isfinite(c_pct) else cr_pct
+        mark = guideline_mark(worst, in_pct)
+        marked += bool(mark)
+        flag = "" if bool(model["identifiable"].values[k]) else " unidentifiable"
+        lines.append(row + f"{format_percent(in_pct):>9}  {mark}{flag}".rstrip())
+    note = (f"guidelines: CR % <= {CR_MAX_PERCENT:g}"
+            + (" (the larger of CR % and CRc %)" if corrected else "")
+            + f", I % <= {INSENSITIVITY_MAX_PERCENT:g}; {marked} parameter(s) marked")
+    if corrected:
+        note += ("; CRc: corrected for coloured residuals (Morelli & Klein 1997), "
+                 f"lag window {model.attrs.get('residual_window_lag_s', float('nan')):.2f} s")
+    lines.append(note)
     delays = [(n, float(model["value"][k])) for k, n in enumerate(names)
               if str(model["matrix"].values[k]) == "delay" and free[k]]
     if delays:
@@ -250,3 +313,182 @@ def correlated_pairs(stats: ParameterStatistics, threshold: float = 0.9
             if np.isfinite(C[i, j]) and abs(C[i, j]) > threshold:
                 out.append((stats.names[i], stats.names[j], float(C[i, j])))
     return sorted(out, key=lambda x: -abs(x[2]))
+
+
+# --------------------------------------------------------------------------------------------
+# Coloured residuals: the Morelli-Klein correction of the time-domain bounds
+# --------------------------------------------------------------------------------------------
+
+
+def residual_autocorrelation(residuals: Sequence[np.ndarray], max_lag: int) -> np.ndarray:
+    """Biased residual auto/cross-correlation, pooled over records, by FFT.
+
+    ``C[k, a, b] = (1/N) sum_records sum_t v[t + k, a] v[t, b]`` for ``k = 0..max_lag``
+    (``N`` the samples of all records; no product spans two records). The biased (1/N)
+    estimate keeps the lag sequence positive semi-definite.
+
+    Parameters
+    ----------
+    residuals : sequence of ndarray (N_r, p)
+        Residuals of each record (whitened in the time-domain fit).
+    max_lag : int
+        Largest lag, samples.
+
+    Returns
+    -------
+    ndarray (max_lag + 1, p, p)
+    """
+    residuals = [np.asarray(v, dtype=float) for v in residuals]
+    if not residuals or any(v.ndim != 2 for v in residuals):
+        raise ValueError("residual_autocorrelation: residuals must be a non-empty list of "
+                         "(samples, outputs) arrays")
+    p = residuals[0].shape[1]
+    if any(v.shape[1] != p for v in residuals):
+        raise ValueError(f"residual_autocorrelation: records have different output counts "
+                         f"{[v.shape[1] for v in residuals]}")
+    max_lag = int(max_lag)
+    total = np.zeros((max_lag + 1, p, p))
+    n_total = 0
+    for v in residuals:
+        N = len(v)
+        n_total += N
+        nfft = scipy.fft.next_fast_len(N + max_lag + 1, real=True)
+        V = scipy.fft.rfft(v, n=nfft, axis=0)  # (F, p)
+        c = scipy.fft.irfft(V[:, :, None] * np.conj(V[:, None, :]), n=nfft, axis=0)
+        kmax = min(max_lag, N - 1)
+        total[:kmax + 1] += c[:kmax + 1]
+    return total / max(n_total, 1)
+
+
+def correlation_lag(autocorrelation: np.ndarray, n_samples: int, *,
+                    band: float = WHITENESS_BAND) -> int:
+    """Lag (samples) by which every output's normalised residual autocorrelation
+    ``rho_a(k) = C[k, a, a] / C[0, a, a]`` has first fallen inside the whiteness band
+    ``band / sqrt(n_samples)``; the largest lag given when one never does. 0 for white
+    residuals."""
+    C = np.asarray(autocorrelation, dtype=float)
+    var = np.einsum("kaa->ka", C)
+    lag = 0
+    limit = band / np.sqrt(max(int(n_samples), 1))
+    for a in range(C.shape[1]):
+        if not var[0, a] > 0:
+            continue
+        inside = np.flatnonzero(var[1:, a] / var[0, a] < limit)
+        lag = max(lag, int(inside[0]) if len(inside) else len(C) - 1)
+    return lag
+
+
+@dataclass
+class ColouredBounds:
+    """Parameter covariance corrected for coloured residuals (:func:`coloured_residual_covariance`).
+
+    Attributes
+    ----------
+    covariance : ndarray (n, n)
+        ``M^-1 B M^-1``; ``inf`` rows/columns where ``M^-1`` has them (unidentifiable).
+    cramer_rao : ndarray (n,)
+        ``sqrt(diag(covariance))``, units of the parameters.
+    decay_lag : int
+        Samples by which the residual autocorrelation has decayed (:func:`correlation_lag`).
+    window_lag : int
+        Half-width of the Bartlett window of the lag sum, samples (0: white).
+    """
+
+    covariance: np.ndarray
+    cramer_rao: np.ndarray
+    decay_lag: int
+    window_lag: int
+
+    def percent(self, values) -> np.ndarray:
+        """``100 * bound / |value|`` (``inf`` for a zero value)."""
+        absval = np.abs(np.asarray(values, dtype=float))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(absval > 0, 100.0 * self.cramer_rao / absval, np.inf)
+
+
+def coloured_residual_covariance(*, sensitivities: Sequence[np.ndarray],
+                                 residuals: Sequence[np.ndarray], information_inverse,
+                                 window_lag: int | None = None) -> ColouredBounds:
+    """Cramer-Rao bounds corrected for coloured residuals (Morelli & Klein 1997).
+
+    With whitened sensitivities ``S(i)`` (p x n per sample, rows divided by the noise
+    standard deviations, i.e. ``R^-1/2 dy/dtheta``) and whitened residuals ``v(i)``::
+
+        Cov = M^-1 B M^-1 ,   B = sum_records sum_i sum_j S(i)^T K(i - j) S(j)
+        K(k) = w_k C(k) ,   K(-k) = K(k)^T ,   w_k = 1 - |k| / (L + 1)  (|k| <= L, else 0)
+
+    ``C`` is :func:`residual_autocorrelation`; ``M^-1`` the white-noise covariance. Morelli
+    and Klein sum all lags of the unbiased estimate; at the optimum the full biased lag sum
+    collapses (``sum_i S(i)^T v(i) = 0``), and the far lags only add estimation noise, so the
+    sum is truncated at ``L = LAG_WINDOW_FACTOR x`` :func:`correlation_lag` with Bartlett
+    weights, which keep ``B`` positive semi-definite (the Newey-West form). White residuals
+    give ``L = 0`` and ``B = M``: the white-noise bound. The inner sum over ``j`` is a
+    convolution, done per record by FFT (``O(N log N p n)``), then one ``(N p) x n``
+    matrix product.
+
+    Parameters
+    ----------
+    sensitivities : sequence of ndarray (N_r, p, n)
+        Whitened output sensitivities per record (nuisance-projected in the output-error fit).
+    residuals : sequence of ndarray (N_r, p)
+        Whitened residuals per record.
+    information_inverse : array_like (n, n)
+        ``M^-1`` (``inf`` rows/columns for unidentifiable parameters, as
+        :attr:`ParameterStatistics.covariance`).
+    window_lag : int, optional
+        ``L`` in samples (default: automatic, as above).
+
+    Returns
+    -------
+    ColouredBounds
+
+    References
+    ----------
+    E. A. Morelli and V. Klein, "Accuracy of aircraft dynamic parameter estimates from
+    flight test data", J. Guidance, Control, and Dynamics 20(1), 1997, pp. 74-80.
+    V. Klein and E. A. Morelli, *Aircraft System Identification*, AIAA 2006, sec. 6.4.
+    W. K. Newey and K. D. West, "A simple, positive semi-definite, heteroskedasticity and
+    autocorrelation consistent covariance matrix", Econometrica 55(3), 1987.
+    """
+    S_list = [np.asarray(S, dtype=float) for S in sensitivities]
+    v_list = [np.asarray(v, dtype=float) for v in residuals]
+    Minv = np.asarray(information_inverse, dtype=float)
+    n = Minv.shape[0]
+    if len(S_list) != len(v_list) or not S_list:
+        raise ValueError(f"coloured_residual_covariance: {len(S_list)} sensitivity and "
+                         f"{len(v_list)} residual records; expected the same, at least one")
+    for k, (S, v) in enumerate(zip(S_list, v_list)):
+        if S.ndim != 3 or S.shape[:2] != v.shape or S.shape[2] != n:
+            raise ValueError(f"coloured_residual_covariance: record {k}: sensitivities "
+                             f"{S.shape} do not match residuals {v.shape} and {n} parameters")
+    n_samples = sum(len(v) for v in v_list)
+    shortest = min(len(v) for v in v_list)
+    if window_lag is None:
+        probe = residual_autocorrelation(v_list, shortest // 2)
+        decay = correlation_lag(probe, n_samples)
+        window = int(min(np.ceil(LAG_WINDOW_FACTOR * decay), shortest - 1))
+    else:
+        decay = window = int(min(max(window_lag, 0), shortest - 1))
+    C = residual_autocorrelation(v_list, window)
+    weights = 1.0 - np.arange(window + 1) / (window + 1.0)
+    K_pos = weights[:, None, None] * C  # K(k), k = 0..L
+    p = v_list[0].shape[1]
+    B = np.zeros((n, n))
+    for S in S_list:
+        N = len(S)
+        nfft = scipy.fft.next_fast_len(N + window, real=True)
+        kernel = np.zeros((nfft, p, p))  # circular layout: K(k) at k, K(-k) at nfft - k
+        kernel[:window + 1] = K_pos
+        if window:
+            kernel[nfft - window:] = np.transpose(K_pos[1:], (0, 2, 1))[::-1]
+        T = scipy.fft.irfft(scipy.fft.rfft(kernel, axis=0) @ scipy.fft.rfft(S, n=nfft, axis=0),
+                            n=nfft, axis=0)[:N]  # T(i) = sum_k K(k) S(i - k)
+        B += S.reshape(N * p, n).T @ T.reshape(N * p, n)
+    B = 0.5 * (B + B.T)
+    ok = np.isfinite(np.diag(Minv))
+    cov = np.full((n, n), np.inf)
+    if np.any(ok):
+        Mi = Minv[np.ix_(ok, ok)]
+        cov[np.ix_(ok, ok)] = Mi @ B[np.ix_(ok, ok)] @ Mi
+    cr = np.where(ok, np.sqrt(np.abs(np.diag(cov))), np.inf)
+    return ColouredBounds(cov, cr, int(decay), int(window))

@@ -65,8 +65,13 @@ nuisance marginalised as above) is formed from the whitened Jacobian (rows divid
 ``sigma_j``) by :func:`sysid.identify.statistics.parameter_statistics`:
 ``CR_i = sqrt((M^-1)_ii)``, insensitivity ``1/sqrt(M_ii)``, correlations. Biases and initial
 states get their bounds from the joint information matrix (structure parameters plus
-nuisance). No "fudge factor" for coloured residuals is applied (Jategaonkar 2015 sec. 4.19
-discusses one); with white measurement noise the bounds are the Cramer-Rao bounds.
+nuisance). These are the Cramer-Rao bounds for white measurement noise. Beside them, the
+final model carries bounds corrected for coloured residuals (unmodelled dynamics,
+turbulence): the Morelli & Klein (1997) sandwich ``M^-1 [sum_i sum_j S(i)^T R_vv(i-j) S(j)]
+M^-1`` of :func:`sysid.identify.statistics.coloured_residual_covariance`, from the same
+projected whitened sensitivities and the whitened residuals of each record (model variables
+``cramer_rao_corrected``, ``cramer_rao_percent_corrected``). The model reduction still
+decides on the white-noise bounds.
 
 Model reduction: the same :func:`sysid.identify.reduction.stepwise_reduction` as the
 frequency-domain fit, with the cost measure ``L`` above (after re-estimating R): removing a
@@ -89,11 +94,13 @@ import scipy.optimize
 import xarray as xr
 
 from sysid.core.errors import IdentificationError, InputDataError
-from sysid.core.util import Progress
+from sysid.core.guidelines import FIT_TIME_LIMIT_S
+from sysid.core.util import Deadline, Progress
 from sysid.data.campaign import TRIM_WINDOW, record_trim
 from sysid.data.importers import validate_time_history
 from sysid.identify.reduction import GUIDELINES, FitOutcome, ReductionResult, stepwise_reduction
-from sysid.identify.statistics import (FitResultParameters, ParameterStatistics,
+from sysid.identify.statistics import (ColouredBounds, FitResultParameters,
+                                      ParameterStatistics, coloured_residual_covariance,
                                       parameter_rows, parameter_statistics, perturbed_start)
 from sysid.models import LinearStructure, propagate
 
@@ -585,11 +592,13 @@ def _likelihood(errors: list, R: np.ndarray) -> float:
     return float(0.5 * np.sum(E ** 2 / R) + 0.5 * len(E) * np.sum(np.log(R)))
 
 
-def _solve(model: OutputErrorModel, theta0, *, tol: float, max_nfev: int | None):
+def _solve(model: OutputErrorModel, theta0, *, tol: float, max_nfev: int | None,
+           deadline: Deadline | None = None):
     lo, hi = model.structure.bounds
     span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
     theta0 = np.clip(np.asarray(theta0, float), lo + 1e-9 * span, hi - 1e-9 * span)
-    return scipy.optimize.least_squares(model.residuals, theta0, jac=model.jacobian,
+    residuals = model.residuals if deadline is None else deadline.wrap(model.residuals)
+    return scipy.optimize.least_squares(residuals, theta0, jac=model.jacobian,
                                         bounds=(lo, hi), method="trf", x_scale="jac",
                                         ftol=tol, xtol=tol, gtol=tol, max_nfev=max_nfev)
 
@@ -597,7 +606,7 @@ def _solve(model: OutputErrorModel, theta0, *, tol: float, max_nfev: int | None)
 def _converge(structure: LinearStructure, records: list[TimeRecord], outputs, theta0, *,
               R0: np.ndarray | None, biases: bool, initial_state: bool, tol: float,
               max_nfev: int | None, max_outer: int, r_tol: float, cost_tol: float,
-              counter: dict) -> _Converged:
+              counter: dict, deadline: Deadline | None = None) -> _Converged:
     """Relaxation (Jategaonkar 2015 sec. 4.6): LM on theta with R fixed, then R from the
     residuals, until R and the cost settle."""
     model = OutputErrorModel(structure, records, outputs, biases=biases,
@@ -619,7 +628,7 @@ def _converge(structure: LinearStructure, records: list[TimeRecord], outputs, th
             limit = max_nfev
             if early and outer < max_outer:
                 limit = EARLY_NFEV if max_nfev is None else min(max_nfev, EARLY_NFEV)
-            res = _solve(model, theta, tol=tol, max_nfev=limit)
+            res = _solve(model, theta, tol=tol, max_nfev=limit, deadline=deadline)
             theta, nfev = res.x, nfev + res.nfev
         ev = model.evaluate(theta)
         R_new = _noise_variance(ev.errors, floor)
@@ -744,6 +753,7 @@ class TimeFitResult(FitResultParameters):
     elapsed: float
     full_statistics: ParameterStatistics | None = None
     initial_structure: LinearStructure | None = None
+    coloured: ColouredBounds | None = None
 
     @property
     def J(self) -> float:
@@ -790,6 +800,7 @@ def identify_time_domain(records, structure: LinearStructure, *,
                          max_cost_increase: float = MAX_COST_INCREASE,
                          protected: Sequence[str] = (), tol: float = 1e-8,
                          max_nfev: int | None = None, max_outer: int = 20,
+                         time_limit: float | None = FIT_TIME_LIMIT_S,
                          r_tol: float = 1e-3, cost_tol: float = 1e-7,
                          restart_fraction: float = 0.0, seed: int = 0, quiet: bool = True,
                          progress=None) -> TimeFitResult:
@@ -819,7 +830,11 @@ def identify_time_domain(records, structure: LinearStructure, *,
     tol : float
         ``ftol = xtol = gtol`` of :func:`scipy.optimize.least_squares` (``"trf"``).
     max_nfev : int, optional
-        Limit on cost evaluations per LM solve.
+        Limit on cost evaluations per LM solve (default scipy's, 100 per parameter).
+    time_limit : float or None
+        Wall-clock bound (s) of the whole identification (default
+        :data:`sysid.core.guidelines.FIT_TIME_LIMIT_S`); past it,
+        :class:`~sysid.core.errors.IdentificationError`. None: unbounded.
     max_outer, r_tol, cost_tol
         Relaxation: at most ``max_outer`` (LM solve, R update) cycles; stop when every
         ``R_jj`` changes by less than ``r_tol`` (relative) and the cost by less than
@@ -869,7 +884,8 @@ def identify_time_domain(records, structure: LinearStructure, *,
                                  f"parameters {list(structure.free_names)}")
     counter = {"cost": 0, "jacobian": 0, "outer": 0}
     kw = dict(biases=biases, initial_state=initial_state, tol=tol, max_nfev=max_nfev,
-              max_outer=max_outer, r_tol=r_tol, cost_tol=cost_tol, counter=counter)
+              max_outer=max_outer, r_tol=r_tol, cost_tol=cost_tol, counter=counter,
+              deadline=Deadline(time_limit, "time-domain fit"))
 
     def converge(st, th0, R0):
         return _converge(st, recs, outs, th0, R0=R0, **kw)
@@ -906,22 +922,38 @@ def identify_time_domain(records, structure: LinearStructure, *,
         restart["same_minimum"] = bool(abs(restart["cost_first"] - restart["cost_restart"])
                                        <= 1e-6 * max(abs(final.cost), 1.0))
     joint = _joint_statistics(final)
+    coloured = _coloured_bounds(final)
     E = np.vstack(final.evaluation.errors)
     J_rms = float(np.sqrt(np.mean(E ** 2)))
     elapsed = time.perf_counter() - t_start
     model = _model_dataset(final, joint, recs, outs, reduction, start_kind, restart, counter,
-                           elapsed, records, J_rms)
+                           elapsed, records, J_rms, coloured)
     rms = np.sqrt(np.mean(E ** 2, axis=0))
     return TimeFitResult(
         model, final.structure, final.theta, final.statistics, joint, final.cost, J_rms,
         dict(zip(outs, final.R.tolist())), dict(zip(outs, rms.tolist())), model["bias"],
         tuple(r.name for r in recs), outs, reduction, start_kind, restart, counter["cost"],
         counter["jacobian"], counter["outer"], elapsed, full_statistics=full.statistics,
-        initial_structure=structure)
+        initial_structure=structure, coloured=coloured)
+
+
+def _coloured_bounds(conv: _Converged) -> ColouredBounds | None:
+    """Bounds of the free parameters corrected for coloured residuals, from the final
+    evaluation's projected whitened Jacobian and whitened residuals, record by record."""
+    ev = conv.evaluation
+    n, p = len(conv.theta), len(conv.outputs)
+    if n == 0 or ev.jacobian is None:
+        return None
+    ends = np.cumsum([0] + [len(e) * p for e in ev.errors])
+    S = [ev.jacobian[a:b].reshape(-1, p, n) for a, b in zip(ends[:-1], ends[1:])]
+    v = [ev.residual[a:b].reshape(-1, p) for a, b in zip(ends[:-1], ends[1:])]
+    return coloured_residual_covariance(sensitivities=S, residuals=v,
+                                        information_inverse=conv.statistics.covariance)
 
 
 def _model_dataset(final: _Converged, joint: ParameterStatistics, recs, outs, reduction,
-                   start_kind, restart, counter, elapsed, datasets, J_rms) -> xr.Dataset:
+                   start_kind, restart, counter, elapsed, datasets, J_rms,
+                   coloured: ColouredBounds | None = None) -> xr.Dataset:
     st = final.structure
     ev = final.evaluation
     attrs = {
@@ -986,4 +1018,22 @@ def _model_dataset(final: _Converged, joint: ParameterStatistics, recs, outs, re
                                          "estimated"})
     ds["initial_state_cramer_rao"] = (("record", "state"), x0_cr,
                                       {"long_name": "Cramer-Rao bound of the initial state"})
+    cr_c = np.full(ds.sizes["parameter"], np.nan)
+    cr_cp = np.full_like(cr_c, np.nan)
+    if coloured is not None:
+        pos = {str(p): k for k, p in enumerate(ds.parameter.values)}
+        idx = np.array([pos[name] for name in st.free_names], dtype=int)
+        cr_c[idx] = coloured.cramer_rao
+        cr_cp[idx] = coloured.percent(final.theta)
+        dt = recs[0].dt
+        ds.attrs.update(residual_decay_lag_s=float(coloured.decay_lag * dt),
+                        residual_window_lag_s=float(coloured.window_lag * dt))
+    ds.attrs["cramer_rao_corrected_convention"] = (
+        "M^-1 [sum_i sum_j S(i)^T R_vv(i-j) S(j)] M^-1 (Morelli & Klein 1997), R_vv the "
+        "whitened residual autocorrelation, Bartlett lag window")
+    ds["cramer_rao_corrected"] = ("parameter", cr_c, {
+        "long_name": "Cramer-Rao bound corrected for coloured residuals (one standard "
+                     "deviation)"})
+    ds["cramer_rao_percent_corrected"] = ("parameter", cr_cp, {
+        "long_name": "corrected Cramer-Rao bound in percent of |value|", "units": "%"})
     return ds
