@@ -61,13 +61,13 @@ import scipy.optimize
 import xarray as xr
 
 from sysid.core.errors import IdentificationError, InputDataError
-from sysid.core.guidelines import COHERENCE_MIN
+from sysid.core.guidelines import COHERENCE_MIN, FIT_TIME_LIMIT_S
 from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
                                       stepwise_reduction)
 from sysid.identify.statistics import (FitResultParameters, ParameterStatistics,
                                       parameter_rows, parameter_statistics, perturbed_start)
 from sysid.models import LinearStructure
-from sysid.core.util import Progress
+from sysid.core.util import Deadline, Progress
 
 __all__ = [
     "DEFAULT_PAIRS",
@@ -78,6 +78,9 @@ __all__ = [
     "FitData",
     "select_fit_data",
     "cifer_cost",
+    "response_errors",
+    "response_residuals",
+    "response_jacobian",
     "equation_error_start",
     "FrequencyFitResult",
     "identify_frequency_domain",
@@ -310,6 +313,41 @@ def _wrap180(x):
     return (np.asarray(x) + 180.0) % 360.0 - 180.0
 
 
+def response_errors(T, data: FitData) -> tuple[np.ndarray, np.ndarray]:
+    """Raw CIFER errors of a model response ``T`` at the points of ``data``: magnitude (dB)
+    and phase (deg, wrapped to +-180), model minus measured. A response of exactly zero gets
+    a large but finite magnitude error (400 dB)."""
+    T = np.asarray(T)
+    with np.errstate(divide="ignore"):
+        mag = _DB * np.log(np.abs(T))
+    e_mag = mag - data.mag_db
+    e_ph = _wrap180(np.angle(T, deg=True) - data.phase_deg)
+    bad = ~np.isfinite(e_mag)
+    if np.any(bad):
+        e_mag = np.where(bad, 400.0, e_mag)
+    return e_mag, e_ph
+
+
+def response_residuals(T, data: FitData) -> np.ndarray:
+    """Weighted residuals ``sqrt(weight) [W_g^1/2 e_dB, W_p^1/2 e_deg]`` of a model response
+    ``T`` at the points of ``data`` (module docstring); their sum of squares is the CIFER
+    cost ``J``."""
+    e_mag, e_ph = response_errors(T, data)
+    sqrt_w = np.sqrt(data.weight)
+    return np.concatenate([sqrt_w * math.sqrt(W_G) * e_mag, sqrt_w * math.sqrt(W_P) * e_ph])
+
+
+def response_jacobian(T, dT, data: FitData) -> np.ndarray:
+    """Jacobian of :func:`response_residuals` from the response ``T`` (n_point,) and its
+    derivatives ``dT`` (n_point, n_parameter): ``d dB = (20/ln 10) Re(dT/T)``,
+    ``d deg = (180/pi) Im(dT/T)``."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.nan_to_num(np.asarray(dT) / np.asarray(T)[:, None])
+    sqrt_w = np.sqrt(data.weight)
+    return np.vstack([(sqrt_w * math.sqrt(W_G))[:, None] * _DB * rel.real,
+                      (sqrt_w * math.sqrt(W_P))[:, None] * _DEG * rel.imag])
+
+
 class _Problem:
     """Residuals and analytic Jacobian of the CIFER cost for one structure and data set."""
 
@@ -327,8 +365,6 @@ class _Problem:
         self.out_idx = outs[data.pair_index]
         self.in_idx = ins[data.pair_index]
         self.s = 1j * data.omega
-        self.sqrt_w = np.sqrt(data.weight)
-        self.sqrt_wp = math.sqrt(W_P)
         self.n_cost = 0
         self.n_jac = 0
         self._cache_key = None
@@ -346,32 +382,17 @@ class _Problem:
     def errors(self, theta):
         """Raw errors: magnitude (dB) and wrapped phase (deg), model minus measured."""
         out = self._eval(np.asarray(theta, float), False)
-        T = out[0] if isinstance(out, tuple) else out
-        with np.errstate(divide="ignore"):
-            mag = _DB * np.log(np.abs(T))
-        e_mag = mag - self.data.mag_db
-        e_ph = _wrap180(np.angle(T, deg=True) - self.data.phase_deg)
-        bad = ~np.isfinite(e_mag)
-        if np.any(bad):  # a model response of exactly zero: large but finite penalty
-            e_mag = np.where(bad, 400.0, e_mag)
-        return e_mag, e_ph
+        return response_errors(out[0] if isinstance(out, tuple) else out, self.data)
 
     def residuals(self, theta):
         self.n_cost += 1
-        e_mag, e_ph = self.errors(theta)
-        return np.concatenate([self.sqrt_w * math.sqrt(W_G) * e_mag,
-                               self.sqrt_w * self.sqrt_wp * e_ph])
+        out = self._eval(np.asarray(theta, float), False)
+        return response_residuals(out[0] if isinstance(out, tuple) else out, self.data)
 
     def jacobian(self, theta):
         self.n_jac += 1
         T, dT = self._eval(np.asarray(theta, float), True)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rel = dT / T[:, None]
-        rel = np.nan_to_num(rel)
-        g_mag = _DB * rel.real
-        g_ph = _DEG * rel.imag
-        return np.vstack([(self.sqrt_w * math.sqrt(W_G))[:, None] * g_mag,
-                          (self.sqrt_w * self.sqrt_wp)[:, None] * g_ph])
+        return response_jacobian(T, dT, self.data)
 
     def pair_costs(self, theta) -> np.ndarray:
         r = self.residuals(theta)
@@ -537,34 +558,37 @@ class _Converged:
     message: str
 
 
-def _solve(problem: _Problem, theta0, *, method: str, tol: float, max_nfev: int | None
-           ) -> scipy.optimize.OptimizeResult:
+def _solve(problem: _Problem, theta0, *, method: str, tol: float, max_nfev: int | None,
+           deadline: Deadline | None = None) -> scipy.optimize.OptimizeResult:
     lo, hi = problem.structure.bounds
+    residuals = problem.residuals if deadline is None else deadline.wrap(problem.residuals)
     theta0 = np.clip(np.asarray(theta0, float), lo, hi)
     bounded = np.any(np.isfinite(lo)) or np.any(np.isfinite(hi))
     if method == "lm":
         if bounded:
             raise IdentificationError("method 'lm' (MINPACK) cannot honour parameter bounds "
                                       "(e.g. delays in 0..0.3 s); use method='trf'")
-        return scipy.optimize.least_squares(problem.residuals, theta0, jac=problem.jacobian,
+        return scipy.optimize.least_squares(residuals, theta0, jac=problem.jacobian,
                                             method="lm", x_scale="jac", ftol=tol, xtol=tol,
                                             gtol=tol, max_nfev=max_nfev)
     # keep strictly inside the bounds (trf requirement)
     span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
     theta0 = np.clip(theta0, lo + 1e-9 * span, hi - 1e-9 * span)
-    return scipy.optimize.least_squares(problem.residuals, theta0, jac=problem.jacobian,
+    return scipy.optimize.least_squares(residuals, theta0, jac=problem.jacobian,
                                         bounds=(lo, hi), method=method, x_scale="jac",
                                         ftol=tol, xtol=tol, gtol=tol, max_nfev=max_nfev)
 
 
 def _converge(structure: LinearStructure, data: FitData, theta0, *, method: str, tol: float,
-              max_nfev: int | None, counter: dict) -> _Converged:
+              max_nfev: int | None, counter: dict, deadline: Deadline | None = None
+              ) -> _Converged:
     prob = _Problem(structure, data)
     if len(structure.free_index) == 0:
         theta = np.zeros(0)
         res_nfev, status, msg = 0, 0, "no free parameters"
     else:
-        res = _solve(prob, theta0, method=method, tol=tol, max_nfev=max_nfev)
+        res = _solve(prob, theta0, method=method, tol=tol, max_nfev=max_nfev,
+                     deadline=deadline)
         theta, res_nfev, status, msg = res.x, res.nfev, res.status, res.message
     costs = prob.pair_costs(theta)
     stats = parameter_statistics(prob.jacobian(theta) if len(theta) else np.zeros((1, 0)),
@@ -696,6 +720,7 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
                               max_cost_increase: float = GUIDELINES["max_cost_increase"],
                               protected: Sequence[str] = (), method: str = "trf",
                               tol: float = 1e-10, max_nfev: int | None = None,
+                              time_limit: float | None = FIT_TIME_LIMIT_S,
                               restart_fraction: float = 0.2, seed: int = 0,
                               anchor_runaways: bool = True,
                               quiet: bool = True, progress: Progress | None = None
@@ -727,6 +752,11 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
         :func:`scipy.optimize.least_squares` method (default "trf", honours delay bounds).
     tol : float
         ``ftol = xtol = gtol`` of the optimiser.
+    max_nfev, time_limit
+        Cost evaluations per solve (default scipy's, 100 per parameter) and the wall-clock
+        bound (s) of the whole identification (default
+        :data:`sysid.core.guidelines.FIT_TIME_LIMIT_S`, None: unbounded); past it,
+        :class:`~sysid.core.errors.IdentificationError`.
     restart_fraction, seed : float, int
         The final fit is restarted from its solution perturbed by ``+-restart_fraction``
         (relative, seeded) to confirm the minimum.
@@ -782,7 +812,8 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
             raise InputDataError(f"start has {theta0.size} values; structure "
                                  f"{structure.name!r} has {structure.theta0.size} free "
                                  f"parameters {list(structure.free_names)}")
-    kw = dict(method=method, tol=tol, max_nfev=max_nfev, counter=counter)
+    kw = dict(method=method, tol=tol, max_nfev=max_nfev, counter=counter,
+              deadline=Deadline(time_limit, "frequency-domain fit"))
     with progress.stage(f"frequency-domain fit of {len(structure.free_index)} parameters on "
                         f"{len(data.pairs)} pairs"):
         full = _converge(structure, data, theta0, **kw)
