@@ -16,8 +16,10 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from sysid.pipeline.batch import (Condition, combine, conditions, load_conditions, monte_carlo,
-                         run_batch, structure_for)
+from sysid.assess.comparison import DOMINANT
+from sysid.pipeline.batch import (Condition, calibration, combine, conditions, format_calibration,
+                                  load_conditions, monte_carlo, plot_calibration, run_batch,
+                                  structure_for)
 from sysid.core.errors import InputDataError
 
 EXHAUSTIVE = os.environ.get("SYSID_EXHAUSTIVE") == "1"
@@ -85,6 +87,52 @@ def test_combine_and_monte_carlo_statistics():
     ratio = mc["ratio"].sel(airspeed_kt=0.0, model="frequency_domain")
     assert np.allclose(ratio, 2.0, atol=0.5)
     assert int(mc["n_seeds"].sel(airspeed_kt=0.0)) == 40
+
+
+def test_calibration_of_the_bounds_against_a_known_scatter(tmp_path):
+    """Both domains, three bounds: frequency-domain values scattered with std 0.2 and bound
+    0.1 (ratio 2), time-domain values with std 0.3, white bound 0.03 (ratio 10) and corrected
+    bound 0.3 (ratio 1); one seed where the time domain dropped L_p is left out."""
+    rng = np.random.default_rng(11)
+    n = 60
+    cs = [Condition(0.0, seed=s) for s in range(n)]
+    records = []
+    for k, c in enumerate(cs):
+        fd = np.array([-3.0, -11.0]) + 0.2 * rng.standard_normal(2)
+        td = np.array([-3.5, -10.0]) + 0.3 * rng.standard_normal(2)
+        if k == 0:
+            td[1] = np.nan
+        summary = xr.Dataset({
+            "value": (("model", "parameter"), np.array([fd, td])),
+            "cramer_rao": (("model", "parameter"), np.array([[0.1, 0.1], [0.03, 0.03]])),
+            "cramer_rao_corrected": (("model", "parameter"),
+                                     np.array([[np.nan] * 2, [0.3, 0.3]])),
+            "truth": (("parameter",), np.array([-3.0, -11.0])),
+            "J_ave": (("model",), [10.0, np.nan]), "j_rms": (("model",), [1.0, 1.0])},
+            coords={"model": ["frequency_domain", "time_domain"], "parameter": ["M_q", "L_p"]})
+        records.append({"name": c.name, "status": "ok", "elapsed_s": 1.0, "summary": summary})
+    ds = combine(cs, records)
+    cal = calibration(ds)
+    ratio = cal["calibration_ratio"].sel(calibration_kt=0.0)
+    assert list(cal.dominant.values) == list(DOMINANT)
+    assert np.allclose(ratio.sel(dominant=["M_q", "L_p"], bound="frequency_domain"), 2.0,
+                       rtol=0.3)
+    assert np.allclose(ratio.sel(dominant=["M_q", "L_p"], bound="time_domain_white"), 10.0,
+                       rtol=0.3)
+    assert np.allclose(ratio.sel(dominant=["M_q", "L_p"], bound="time_domain_corrected"), 1.0,
+                       rtol=0.3)
+    assert np.isnan(ratio.sel(dominant="Z_w")).all()  # not estimated anywhere
+    assert int(cal["calibration_n_seeds"].sel(calibration_kt=0.0, dominant="L_p",
+                                              bound="time_domain_white")) == n - 1
+    values = ds["value"].sel(model="time_domain", parameter="L_p").values[1:]
+    assert float(cal["calibration_scatter"].sel(calibration_kt=0.0, dominant="L_p",
+                                                bound="time_domain_white")) == pytest.approx(
+        np.std(values, ddof=1), rel=1e-12)
+    text = format_calibration(ds.merge(cal))
+    assert "time_domain_corrected" in text and "M_q" in text
+    assert plot_calibration(ds.merge(cal), tmp_path / "c.png").stat().st_size > 5_000
+    # one seed is no calibration
+    assert calibration(combine(cs[:1], records[:1])) is None
 
 
 @pytest.mark.slow

@@ -14,6 +14,8 @@ results (verification, comparison, export, report)::
                                 Cramer-Rao bars, the truth linearisation overlaid
     <out>/monte_carlo.nc, monte_carlo.txt   with several seeds per airspeed: observed scatter
                                 of each estimate against its mean Cramer-Rao bound
+    <out>/batch_calibration.png with several seeds per airspeed: scatter / mean bound of each
+                                dominant derivative, both domains, and the 0.5-2 goal band
     <out>/batch_summary.txt     one line per condition (status, time, J_ave, error)
 
 Where it runs: a :class:`distributed.LocalCluster` of ``n_workers`` processes with one thread
@@ -44,6 +46,13 @@ The ``batch.nc`` Dataset (dims ``condition``, ``model`` (the identification meth
   ``status`` (``ok``/``failed``), ``error`` (type: message, "" when ok), ``elapsed_s``;
 - ``value``, ``cramer_rao`` (absolute), ``cramer_rao_percent`` (condition, model, parameter):
   identified parameters (derivatives and delays), NaN where a method did not estimate it;
+  ``cramer_rao_corrected`` (same dims): the bound corrected for coloured residuals (time
+  domain; NaN for the frequency domain);
+- the Monte Carlo calibration of the bounds (:func:`calibration`; with at least two
+  successful seeds at an airspeed), dims ``calibration_kt`` x ``dominant`` (the dominant
+  derivatives, :data:`sysid.assess.comparison.DOMINANT`) x ``bound``
+  (:data:`CALIBRATION_BOUNDS`): ``calibration_scatter``, ``calibration_bound``,
+  ``calibration_ratio``, ``calibration_mean``, ``calibration_truth``, ``calibration_n_seeds``;
 - ``truth`` (condition, parameter): the truth model's quasi-steady linearisation at the
   condition (NaN for delays);
 - ``J_ave`` (condition, model); ``j_rms`` (condition, model): mean verification J_rms.
@@ -63,6 +72,7 @@ from typing import Iterable, Sequence
 import numpy as np
 import xarray as xr
 
+from sysid.assess.comparison import DOMINANT
 from sysid.core import errors
 from sysid.core.errors import InputDataError, SysidError
 from sysid.core.units import CONTROLS
@@ -332,6 +342,7 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
     value = np.full((len(methods), len(names)), np.nan)
     cr = np.full_like(value, np.nan)
     crp = np.full_like(value, np.nan)
+    crc = np.full_like(value, np.nan)
     j_ave = np.full(len(methods), np.nan)
     for i, (method, model) in enumerate(models.items()):
         index = {str(p): k for k, p in enumerate(model.parameter.values)}
@@ -344,6 +355,8 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
                 cr[i, j] = float(model["cramer_rao"].values[k])
             if "cramer_rao_percent" in model:
                 crp[i, j] = float(model["cramer_rao_percent"].values[k])
+            if "cramer_rao_corrected" in model:
+                crc[i, j] = float(model["cramer_rao_corrected"].values[k])
         j_ave[i] = float(model.attrs.get("J_ave", np.nan))
     truth_values = parameter_values(truth, names)
     j_rms = np.full(len(methods), np.nan)
@@ -360,6 +373,8 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
     return xr.Dataset(
         {"value": (dims, value), "cramer_rao": (dims, cr),
          "cramer_rao_percent": (dims, crp, {"units": "%"}),
+         "cramer_rao_corrected": (dims, crc, {
+             "long_name": "Cramer-Rao bound corrected for coloured residuals"}),
          "truth": (("parameter",), truth_values,
                    {"long_name": "truth model's quasi-steady linearisation"}),
          "J_ave": (("model",), j_ave, {"long_name": "average frequency-domain cost"}),
@@ -496,6 +511,9 @@ def run_batch(conditions: Sequence[Condition], out_dir: str | Path, *,
 
     ordered = [records[c.name] for c in conditions]
     dataset = combine(conditions, ordered)
+    calibrated = calibration(dataset)
+    if calibrated is not None:
+        dataset = dataset.merge(calibrated)
     wall = time.perf_counter() - start
     dataset.attrs.update(wall_time_s=round(wall, 2),
                          n_workers=0 if scheduler else int(n_workers),
@@ -503,12 +521,16 @@ def run_batch(conditions: Sequence[Condition], out_dir: str | Path, *,
     with atomic_path(out / "batch.nc") as tmp:
         dataset.to_netcdf(tmp)
     figure = plot_derivatives(dataset, out / "batch_derivatives.png")
+    if calibrated is not None:
+        plot_calibration(dataset, out / "batch_calibration.png")
     mc = monte_carlo(dataset)
     if mc is not None:
         with atomic_path(out / "monte_carlo.nc") as tmp:
             mc.to_netcdf(tmp)
         with atomic_path(out / "monte_carlo.txt") as tmp:
-            tmp.write_text(format_monte_carlo(mc) + "\n")
+            tmp.write_text(format_monte_carlo(mc) + "\n"
+                           + ("\n" + format_calibration(dataset) + "\n"
+                              if calibrated is not None else ""))
     with atomic_path(out / "batch_summary.txt") as tmp:
         tmp.write_text(format_summary(dataset) + "\n")
     failed = [r for r in ordered if r["status"] != "ok"]
@@ -697,6 +719,165 @@ def format_monte_carlo(mc: xr.Dataset) -> str:
     return "\n".join(lines)
 
 
+#: The bounds the Monte Carlo calibration judges: the frequency-domain Cramer-Rao bound, the
+#: time-domain white-noise bound and the time-domain bound corrected for coloured residuals,
+#: as ``name -> (model, batch.nc variable)``.
+CALIBRATION_BOUNDS = {
+    "frequency_domain": ("frequency_domain", "cramer_rao"),
+    "time_domain_white": ("time_domain", "cramer_rao"),
+    "time_domain_corrected": ("time_domain", "cramer_rao_corrected"),
+}
+#: Goal band of the calibration ratio scatter / mean bound (issue 21): a bound within a
+#: factor of two of the observed scatter.
+CALIBRATION_GOAL = (0.5, 2.0)
+
+
+def calibration(ds: xr.Dataset, parameters: Sequence[str] = DOMINANT) -> xr.Dataset | None:
+    """Monte Carlo calibration of the reported bounds: per airspeed with at least two
+    successful seeds, per dominant derivative and per bound of :data:`CALIBRATION_BOUNDS`,
+    the seed-to-seed scatter of the estimate against the mean reported bound.
+
+    ``scatter = std over seeds (ddof=1)`` of the estimate of the bound's model,
+    ``bound = mean over seeds`` of the reported bound (absolute), ``ratio = scatter /
+    bound`` (1 for an honest bound; the goal is :data:`CALIBRATION_GOAL`). Seeds where a
+    derivative was not estimated (removed by the reduction) are left out of both.
+
+    Returns
+    -------
+    xr.Dataset or None
+        Dims ``calibration_kt`` (airspeed, kt), ``dominant``, ``bound``: variables
+        ``calibration_scatter``, ``calibration_bound``, ``calibration_ratio``,
+        ``calibration_mean`` (mean estimate), ``calibration_truth`` (mean truth value),
+        ``calibration_n_seeds`` (seeds with an estimate); None when no airspeed has two
+        successful seeds.
+    """
+    if "value" not in ds or "condition" not in ds.dims:
+        return None
+    ok = ds.isel(condition=np.flatnonzero(ds.status.values == "ok"))
+    speeds = [float(v) for v in np.unique(ok.airspeed_kt.values)
+              if int(np.sum(ok.airspeed_kt.values == v)) >= 2]
+    if not speeds:
+        return None
+    params = [str(p) for p in parameters]
+    bounds = list(CALIBRATION_BOUNDS)
+    shape = (len(speeds), len(params), len(bounds))
+    out = {k: np.full(shape, np.nan) for k in ("scatter", "bound", "mean", "truth")}
+    count = np.zeros(shape, dtype=int)
+    models = [str(m) for m in ok.model.values]
+    present = [str(p) for p in ok.parameter.values]
+    for i, speed in enumerate(speeds):
+        part = ok.isel(condition=np.flatnonzero(ok.airspeed_kt.values == speed))
+        for j, name in enumerate(params):
+            if name not in present:
+                continue
+            for k, (model, variable) in enumerate(CALIBRATION_BOUNDS.values()):
+                if model not in models or variable not in part:
+                    continue
+                value = part["value"].sel(model=model, parameter=name).values
+                bound = part[variable].sel(model=model, parameter=name).values
+                use = np.isfinite(value) & np.isfinite(bound)
+                count[i, j, k] = int(use.sum())
+                if use.sum() >= 2:
+                    out["scatter"][i, j, k] = np.std(value[use], ddof=1)
+                    out["bound"][i, j, k] = np.mean(bound[use])
+                    out["mean"][i, j, k] = np.mean(value[use])
+                if "truth" in part:
+                    out["truth"][i, j, k] = float(np.nanmean(
+                        part["truth"].sel(parameter=name).values)) if bool(
+                        part["truth"].sel(parameter=name).notnull().any()) else np.nan
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = out["scatter"] / out["bound"]
+    dims = ("calibration_kt", "dominant", "bound")
+    return xr.Dataset(
+        {"calibration_scatter": (dims, out["scatter"], {
+            "long_name": "standard deviation of the estimate over seeds (ddof=1)"}),
+         "calibration_bound": (dims, out["bound"], {
+             "long_name": "mean reported bound over seeds (absolute)"}),
+         "calibration_ratio": (dims, ratio, {
+             "long_name": "scatter / mean bound", "goal": list(CALIBRATION_GOAL)}),
+         "calibration_mean": (dims, out["mean"], {"long_name": "mean estimate over seeds"}),
+         "calibration_truth": (dims, out["truth"], {
+             "long_name": "truth model's quasi-steady linearisation (mean over seeds)"}),
+         "calibration_n_seeds": (dims, count, {"long_name": "seeds with an estimate"})},
+        coords={"calibration_kt": ("calibration_kt", speeds, {"units": "kt"}),
+                "dominant": params, "bound": bounds})
+
+
+def format_calibration(ds: xr.Dataset) -> str:
+    """Text table of :func:`calibration` (from a ``batch.nc`` Dataset that carries it)."""
+    lines = [f"Calibration of the bounds: scatter over seeds / mean reported bound "
+             f"(goal {CALIBRATION_GOAL[0]:g}-{CALIBRATION_GOAL[1]:g})"]
+    bounds = [str(b) for b in ds.bound.values]
+    for speed in ds.calibration_kt.values:
+        part = ds.sel(calibration_kt=speed)
+        n = int(part["calibration_n_seeds"].max())
+        lines.append(f"\n{float(speed):g} kt (up to {n} seeds); bias = (mean - truth) / scatter")
+        lines.append(f"{'parameter':<10}" + "".join(f"{b:>24}" for b in bounds)
+                     + f"{'bias FD':>9}{'bias TD':>9}")
+        lines.append(f"{'':<10}" + "".join(f"{'scatter':>9}{'bound':>9}{'ratio':>6}"
+                                           for _ in bounds))
+        for name in ds.dominant.values:
+            c = part.sel(dominant=name)
+            row = f"{str(name):<10}"
+            for b in bounds:
+                cb = c.sel(bound=b)
+                row += (f"{float(cb['calibration_scatter']):>9.3g}"
+                        f"{float(cb['calibration_bound']):>9.3g}"
+                        f"{float(cb['calibration_ratio']):>6.2f}")
+            for b in ("frequency_domain", "time_domain_white"):
+                cb = c.sel(bound=b)
+                bias = (float(cb["calibration_mean"]) - float(cb["calibration_truth"])) / \
+                    float(cb["calibration_scatter"])
+                row += f"{bias:>9.1f}"
+            lines.append(row)
+        inside = ((part["calibration_ratio"] >= CALIBRATION_GOAL[0])
+                  & (part["calibration_ratio"] <= CALIBRATION_GOAL[1]))
+        lines.append("inside the goal band: " + ", ".join(
+            f"{b} {int(inside.sel(bound=b).sum())}/{ds.sizes['dominant']}" for b in bounds))
+    return "\n".join(lines)
+
+
+def plot_calibration(ds: xr.Dataset, path: str | Path) -> Path | None:
+    """Scatter / mean bound per dominant derivative, one marker per bound of
+    :data:`CALIBRATION_BOUNDS`, one panel per airspeed, log scale, the goal band shaded; PNG."""
+    import matplotlib  # deferred: optional heavy dependency, only for the figure
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if "calibration_ratio" not in ds:
+        return None
+    speeds = ds.calibration_kt.values
+    fig, axes = plt.subplots(1, len(speeds), figsize=(7.5 * len(speeds), 3.8), squeeze=False)
+    styles = {"frequency_domain": ("C0", "o", "FD: CR bound"),
+              "time_domain_white": ("C3", "s", "TD: white-noise CR bound"),
+              "time_domain_corrected": ("C2", "D", "TD: corrected for coloured residuals")}
+    names = [str(n) for n in ds.dominant.values]
+    x = np.arange(len(names))
+    for ax, speed in zip(axes[0], speeds):
+        part = ds["calibration_ratio"].sel(calibration_kt=speed)
+        ax.axhspan(*CALIBRATION_GOAL, color="0.9", zorder=0, label="goal 0.5-2")
+        ax.axhline(1.0, color="0.6", lw=0.8, zorder=0)
+        for k, bound in enumerate(ds.bound.values):
+            color, marker, label = styles.get(str(bound), ("C1", "^", str(bound)))
+            r = part.sel(bound=bound).values
+            ax.plot(x + (k - 1) * 0.15, np.where(r > 0, r, np.nan), marker, color=color,
+                    ms=6, ls="none", label=label)
+        ax.set_yscale("log")
+        ax.set_xticks(x, names, fontsize=8)
+        n = int(ds["calibration_n_seeds"].sel(calibration_kt=speed).max())
+        ax.set_title(f"{float(speed):g} kt, {n} seeds: scatter over seeds / mean reported "
+                     f"bound", fontsize=9)
+        ax.set_ylabel("ratio", fontsize=8)
+        ax.legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90)
+    plt.close(fig)
+    return path
+
+
 def format_summary(ds: xr.Dataset) -> str:
     lines = [f"{'condition':<32}{'kt':>6}{'seed':>10}  {'structure':<14}{'status':<8}"
              f"{'time s':>8}{'J_ave FD':>10}{'J_ave TD':>10}  error"]
@@ -734,7 +915,8 @@ def default_conditions(*, quick: bool = False) -> list[Condition]:
 
 __all__ = ["Condition", "BatchResult", "conditions", "load_conditions", "default_conditions",
            "run_batch", "run_condition", "run_condition_part", "condition_summary", "combine",
-           "plot_derivatives", "monte_carlo", "structure_for", "quick_campaign", "read_batch",
+           "plot_derivatives", "monte_carlo", "calibration", "format_calibration",
+           "plot_calibration", "CALIBRATION_BOUNDS", "CALIBRATION_GOAL", "structure_for", "quick_campaign", "read_batch",
            "DEFAULT_SPEEDS",
            "FORWARD_FLIGHT_KT"]
 
