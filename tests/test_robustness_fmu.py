@@ -210,6 +210,9 @@ def test_hostile_archive_is_refused_before_extraction(sandbox, label):
 
     t = np.arange(5) * 0.01
     inputs = xr.Dataset({"lon": ("time", np.zeros(5))}, coords={"time": t})
+    if label == "fmi3":
+        # it runs FMI 3.0 too, so the relabelled FMI 2.0 description fails its 3.0 checks
+        message = "has no instantiationToken"
     for mode in ("cs", "me"):
         with pytest.raises(FMUError, match=message) as info:
             simulate_exported(path, inputs, mode=mode)

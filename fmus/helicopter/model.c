@@ -39,7 +39,7 @@ static double gearing(double percent, double at0, double at100) {
     return at0 + (at100 - at0) * 0.01 * clamp_percent(percent);
 }
 
-fmi2Status model_initialize(ModelInstance *comp) {
+FmuStatus model_initialize(ModelInstance *comp) {
     const double *r = comp->s.r;
     ModelData *d = &comp->s.data;
     static const struct { int vr; } positive[] = {
@@ -52,21 +52,21 @@ fmi2Status model_initialize(ModelInstance *comp) {
 
     for (i = 0; i < sizeof positive / sizeof positive[0]; i++) {
         if (!(r[positive[i].vr] > 0.0)) {
-            fmu_log(comp, fmi2Error, "logError", "parameter %s must be positive, got %g",
+            fmu_log(comp, FMU_ERROR, "logError", "parameter %s must be positive, got %g",
                     MODEL_VAR_NAMES[positive[i].vr], r[positive[i].vr]);
-            return fmi2Error;
+            return FMU_ERROR;
         }
     }
     if (P(K_beta) < 0.0) {
-        fmu_log(comp, fmi2Error, "logError", "parameter K_beta must not be negative, got %g",
+        fmu_log(comp, FMU_ERROR, "logError", "parameter K_beta must not be negative, got %g",
                 P(K_beta));
-        return fmi2Error;
+        return FMU_ERROR;
     }
     det = P(Ixx) * P(Izz) - P(Ixz) * P(Ixz);
     if (!(det > 0.0)) {
-        fmu_log(comp, fmi2Error, "logError",
+        fmu_log(comp, FMU_ERROR, "logError",
                 "inertia tensor is not positive definite: Ixx Izz - Ixz^2 = %g", det);
-        return fmi2Error;
+        return FMU_ERROR;
     }
     d->inv_mass = 1.0 / P(mass);
     d->inv_det_xz = 1.0 / det;
@@ -105,7 +105,7 @@ fmi2Status model_initialize(ModelInstance *comp) {
     d->vt_sin2i = sin(2.0 * P(i_vt));
     d->vt_cos_i = cos(P(i_vt));
     d->vt_sin_i = sin(P(i_vt));
-    return fmi2OK;
+    return FMU_OK;
 }
 
 /*
@@ -425,7 +425,7 @@ void model_calculate_values(ModelInstance *comp) {
     P(power) = o.power;
 }
 
-fmi2Status model_do_step(ModelInstance *comp, double h) {
+FmuStatus model_do_step(ModelInstance *comp, double h) {
     return fmu_integrate_rk4(comp, h, comp->s.r[VR_h_rk4]);
 }
 

@@ -1,6 +1,6 @@
 /*
- * A linear state-space model with per-entry input delays, plugged into the shared FMI 2.0
- * boilerplate of fmus/common (fmu_model.h). Generic: every number that belongs to one
+ * A linear state-space model with per-entry input delays, plugged into the shared FMI 2.0 /
+ * FMI 3.0 boilerplate of fmus/common (fmu_model.h). Generic: every number that belongs to one
  * exported model is in the generated headers linear_dims.h, linear_tables.h and
  * model_variables.h (written by sysid.fmi.export).
  *
@@ -9,9 +9,10 @@
  * Co-simulation: the states are advanced by the exact zero-order-hold discretisation of the
  * communication step (matrix exponential by Pade scaling and squaring, recomputed when the
  * step changes) and each delay group (one delay acting on some B entries of one input) reads
- * a ring buffer of past inputs, linearly interpolated between communication points: the
- * convention of sysid.models.simulate. Model exchange, ME_DELAY_BUFFER = 1 (default): the
- * same ring buffer, filled at every input update (fmi2SetReal), gives each group a delayed
+ * a time-stamped history of past inputs (growing as needed, pruned of samples no delay can
+ * reach), linearly interpolated between communication points: the convention of
+ * sysid.models.simulate. Model exchange, ME_DELAY_BUFFER = 1 (default): the same history,
+ * filled at every input update (fmi2SetReal / fmi3SetFloat64), gives each group a delayed
  * input held from one update to the next - the same convention, so CVode reproduces
  * simulate to its tolerance; an update that changes a delayed input raises a step event.
  * ME_DELAY_BUFFER = 0: each group is an n-th order Pade approximant with its own continuous
@@ -53,7 +54,7 @@ static void pade_realisation(ModelData *d) {
     for (k = 0; k < n; k++) d->pade_c[k] /= d->pade_a[0];
 }
 
-fmi2Status model_initialize(ModelInstance *comp) {
+FmuStatus model_initialize(ModelInstance *comp) {
     ModelData *d = &comp->s.data;
     double A[N_X][N_X], B[N_X][N_U], C[N_Y][N_X], D[N_Y][N_U];
     int i, j, k, g;
@@ -69,8 +70,8 @@ fmi2Status model_initialize(ModelInstance *comp) {
         double value = R(comp, VR_PAR0 + k);
         int row = PAR_ROW[k], col = PAR_COL[k];
         if (!isfinite(value)) {
-            fmu_log(comp, fmi2Error, "logError", "parameter %s is not finite", PAR_NAMES[k]);
-            return fmi2Error;
+            fmu_log(comp, FMU_ERROR, "logError", "parameter %s is not finite", PAR_NAMES[k]);
+            return FMU_ERROR;
         }
         switch (PAR_MATRIX[k]) {
         case MATRIX_A: A[row][col] += value; break;
@@ -79,9 +80,9 @@ fmi2Status model_initialize(ModelInstance *comp) {
         case MATRIX_D: D[row][col] += value; break;
         default: /* MATRIX_DELAY: row is the delay group */
             if (value < 0.0) {
-                fmu_log(comp, fmi2Error, "logError",
+                fmu_log(comp, FMU_ERROR, "logError",
                         "delay parameter %s must be >= 0 s, got %g", PAR_NAMES[k], value);
-                return fmi2Error;
+                return FMU_ERROR;
             }
             d->tau[row] = value;
         }
@@ -99,15 +100,22 @@ fmi2Status model_initialize(ModelInstance *comp) {
     for (k = 0; k < N_U; k++) d->trim_u[k] = R(comp, VR_TRIM_U0 + k);
     for (i = 0; i < N_Y; i++) d->trim_y[i] = R(comp, VR_TRIM_Y0 + i);
     pade_realisation(d);
+    /* lookups reach back at most the largest delay; keep twice that (an environment may
+     * step back a little in model exchange) */
+    d->hist_horizon = 0.0;
+    for (g = 0; g < N_GROUPS; g++)
+        if (2.0 * d->tau[g] > d->hist_horizon) d->hist_horizon = 2.0 * d->tau[g];
     d->zoh_valid = 0; /* the matrices may have changed */
-    return fmi2OK;
+    return FMU_OK;
 }
 
 void model_reset(ModelInstance *comp) {
-    /* The boilerplate has zeroed ModelData: empty history, no cached discretisation. */
+    /* The boilerplate has zeroed ModelData and emptied the storage: empty history, no
+     * cached discretisation. */
     comp->s.data.zoh_valid = 0;
+    comp->s.data.hist_first = 0;
     comp->s.data.hist_count = 0;
-    comp->s.data.hist_dropped = 0;
+    comp->s.data.hist_pruned = 0;
     comp->s.data.event_pending = 0;
 }
 
@@ -135,50 +143,113 @@ static void perturbation_inputs(const ModelInstance *comp, double *u) {
 }
 
 /* ------------------------------------------------------------------------------------------ */
-/* input history (co-simulation, and model exchange with ME_DELAY_BUFFER)                                        */
+/* input history (co-simulation, and model exchange with ME_DELAY_BUFFER)                      */
 
-static void history_append(ModelData *d, double t, const double *u_abs) {
-    int k;
-    if (d->hist_count > 0 && d->hist_t[d->hist_head] >= t) {
-        /* a repeated communication point overwrites its sample */
-        for (k = 0; k < N_U; k++) d->hist_u[d->hist_head][k] = u_abs[k];
-        return;
-    }
-    d->hist_head = (d->hist_head + 1) % HIST_LEN;
-    if (d->hist_count < HIST_LEN) d->hist_count++;
-    else d->hist_dropped = 1;
-    d->hist_t[d->hist_head] = t;
-    for (k = 0; k < N_U; k++) d->hist_u[d->hist_head][k] = u_abs[k];
+/* Record i of the kept samples (0 = oldest): time, N_U absolute inputs, N_GROUPS held
+ * delayed inputs (model exchange). */
+static double *hist_record(const ModelInstance *comp, long i) {
+    return comp->store + (size_t)(comp->s.data.hist_first + i) * HIST_WIDTH;
 }
 
-/* Input k (absolute) at time s <= newest sample, linearly interpolated between the stored
- * samples; before the first sample it is held at the first sample. Returns 0
- * if the sample needed has already been overwritten. */
-static int history_value(const ModelData *d, int k, double s, double *value) {
-    int n, idx = d->hist_head, newer = -1;
-    for (n = 0; n < d->hist_count; n++) {
-        if (d->hist_t[idx] <= s) {
-            if (newer < 0) {
-                *value = d->hist_u[idx][k];
-            } else {
-                /* u0 + w (u1 - u0) returns u0 exactly between equal samples, so a held
-                 * input gives a delayed input that does not change in the last bit (model
-                 * exchange raises an event whenever a delayed input changes) */
-                double w = (s - d->hist_t[idx]) / (d->hist_t[newer] - d->hist_t[idx]);
-                *value = d->hist_u[idx][k] + w * (d->hist_u[newer][k] - d->hist_u[idx][k]);
-            }
+static void hist_used(ModelInstance *comp) {
+    comp->s.store_used = (size_t)(comp->s.data.hist_first + comp->s.data.hist_count) * HIST_WIDTH;
+}
+
+/* Make room for one more record: drop the samples no lookup can reach any more (sample i
+ * goes when sample i + 1 is already at or before t_new - hist_horizon), move the rest to the
+ * front, and grow the storage so that at least half of it stays free (amortised O(1) per
+ * sample, however small the steps). Returns 0 when memory runs out. */
+static int history_make_room(ModelInstance *comp, double t_new) {
+    ModelData *d = &comp->s.data;
+    const double limit = t_new - d->hist_horizon;
+    long drop = 0;
+    while (drop + 1 < d->hist_count && hist_record(comp, drop + 1)[0] <= limit) drop++;
+    if (drop > 0) d->hist_pruned = 1;
+    d->hist_first += drop;
+    d->hist_count -= drop;
+    if (d->hist_first > 0) {
+        memmove(comp->store, hist_record(comp, 0),
+                (size_t)d->hist_count * HIST_WIDTH * sizeof(double));
+        d->hist_first = 0;
+    }
+    hist_used(comp);
+    return fmu_store_reserve(comp, 2 * (size_t)(d->hist_count + 1) * HIST_WIDTH);
+}
+
+/* Append the inputs at time t; a repeated time overwrites the newest sample. */
+static int history_append(ModelInstance *comp, double t, const double *u_abs) {
+    ModelData *d = &comp->s.data;
+    double *rec;
+    int k;
+    if (d->hist_count > 0) {
+        rec = hist_record(comp, d->hist_count - 1);
+        if (rec[0] >= t) {
+            for (k = 0; k < N_U; k++) rec[1 + k] = u_abs[k];
             return 1;
         }
-        newer = idx;
-        idx = (idx + HIST_LEN - 1) % HIST_LEN;
     }
-    if (d->hist_dropped) return 0;
-    *value = d->hist_u[newer][k]; /* the oldest sample is the first one */
+    if ((size_t)(d->hist_first + d->hist_count + 1) * HIST_WIDTH > comp->store_capacity &&
+        !history_make_room(comp, t))
+        return 0;
+    rec = hist_record(comp, d->hist_count);
+    rec[0] = t;
+    for (k = 0; k < N_U; k++) rec[1 + k] = u_abs[k];
+    for (k = 0; k < N_GROUPS_ALLOC; k++) rec[1 + N_U + k] = 0.0;
+    d->hist_count++;
+    hist_used(comp);
     return 1;
 }
 
+/* Newest kept sample at or before t (the oldest if t precedes them all), -1 if none. */
+static long hist_sample_at(const ModelInstance *comp, double t) {
+    long lo = 0, hi = comp->s.data.hist_count - 1;
+    if (hi < 0) return -1;
+    while (lo < hi) {
+        long mid = (lo + hi + 1) / 2;
+        if (hist_record(comp, mid)[0] <= t) lo = mid;
+        else hi = mid - 1;
+    }
+    return lo;
+}
+
+/* Input k (absolute) at time s <= newest sample, linearly interpolated between the kept
+ * samples; before the first sample it is held at the first sample. Returns 0 if s lies
+ * before the oldest kept sample and older ones were dropped (the history cannot answer). */
+static int history_value(const ModelInstance *comp, int k, double s, double *value) {
+    long i = hist_sample_at(comp, s);
+    const double *a, *b;
+    double w;
+    if (i < 0) return 0;
+    a = hist_record(comp, i);
+    if (a[0] > s) { /* before every kept sample */
+        if (comp->s.data.hist_pruned) return 0;
+        *value = a[1 + k];
+        return 1;
+    }
+    if (i == comp->s.data.hist_count - 1) {
+        *value = a[1 + k];
+        return 1;
+    }
+    b = hist_record(comp, i + 1);
+    /* u0 + w (u1 - u0) returns u0 exactly between equal samples, so a held input gives a
+     * delayed input that does not change in the last bit (model exchange raises an event
+     * whenever a delayed input changes) */
+    w = (s - a[0]) / (b[0] - a[0]);
+    *value = a[1 + k] + w * (b[1 + k] - a[1 + k]);
+    return 1;
+}
+
+static void history_refused(const ModelInstance *comp, int g, double t) {
+    fmu_log(comp, FMU_ERROR, "logError",
+            "delay %s = %g s at t = %g s needs the input at t = %g s, before the oldest "
+            "input sample kept (t = %g s): the environment went back in time by more than "
+            "the largest delay without restoring an FMU state",
+            PAR_NAMES[GROUP_PAR[g]], comp->s.data.tau[g], t, t - comp->s.data.tau[g],
+            hist_record(comp, 0)[0]);
+}
+
 /* Delayed inputs (perturbations) of all groups at time t from the history. */
-static fmi2Status delayed_inputs(const ModelInstance *comp, double t, double *v) {
+static FmuStatus delayed_inputs(const ModelInstance *comp, double t, double *v) {
     const ModelData *d = &comp->s.data;
     int g;
     for (g = 0; g < N_GROUPS; g++) {
@@ -186,16 +257,13 @@ static fmi2Status delayed_inputs(const ModelInstance *comp, double t, double *v)
         double value;
         if (d->hist_count == 0) {
             value = R(comp, VR_U0 + k);
-        } else if (!history_value(d, k, t - d->tau[g], &value)) {
-            fmu_log(comp, fmi2Error, "logError",
-                    "delay %s = %g s reaches back beyond the %d stored communication points; "
-                    "use longer communication steps or export with more history samples",
-                    PAR_NAMES[GROUP_PAR[g]], d->tau[g], HIST_LEN);
-            return fmi2Error;
+        } else if (!history_value(comp, k, t - d->tau[g], &value)) {
+            history_refused(comp, g, t);
+            return FMU_ERROR;
         }
         v[g] = value - d->trim_u[k];
     }
-    return fmi2OK;
+    return FMU_OK;
 }
 
 /* ------------------------------------------------------------------------------------------ */
@@ -213,100 +281,130 @@ static fmi2Status delayed_inputs(const ModelInstance *comp, double t, double *v)
  * after an input event at t_k wins over the left limit set just before), and an update at an
  * earlier time (the environment went back without restoring an FMU state) drops the samples
  * after it. */
-static fmi2Status me_record_inputs(ModelInstance *comp) {
+static FmuStatus me_record_inputs(ModelInstance *comp) {
     ModelData *d = &comp->s.data;
     const double t = comp->s.time;
-    double u_abs[N_U], before[N_GROUPS_ALLOC];
+    double u_abs[N_U], before[N_GROUPS_ALLOC], held[N_GROUPS_ALLOC];
+    double *rec;
     int g, k, had_before;
 
-    while (d->hist_count > 0 && d->hist_t[d->hist_head] > t) {
-        d->hist_head = (d->hist_head + HIST_LEN - 1) % HIST_LEN;
-        d->hist_count--;
-    }
+    while (d->hist_count > 0 && hist_record(comp, d->hist_count - 1)[0] > t) d->hist_count--;
+    hist_used(comp);
     had_before = d->hist_count > 0;
-    for (g = 0; g < N_GROUPS; g++) before[g] = had_before ? d->hist_v[d->hist_head][g] : 0.0;
+    for (g = 0; g < N_GROUPS; g++)
+        before[g] = had_before ? hist_record(comp, d->hist_count - 1)[1 + N_U + g] : 0.0;
     for (k = 0; k < N_U; k++) u_abs[k] = R(comp, VR_U0 + k);
-    history_append(d, t, u_abs);
+    if (!history_append(comp, t, u_abs)) return FMU_ERROR;
     for (g = 0; g < N_GROUPS; g++) {
         double value = u_abs[GROUP_INPUT[g]];
-        if (d->tau[g] > 0.0 && !history_value(d, GROUP_INPUT[g], t - d->tau[g], &value)) {
-            fmu_log(comp, fmi2Error, "logError",
-                    "delay %s = %g s reaches back beyond the %d stored input updates at "
-                    "t = %g s; set the inputs less often or export with more history samples",
-                    PAR_NAMES[GROUP_PAR[g]], d->tau[g], HIST_LEN, t);
-            return fmi2Error;
+        if (d->tau[g] > 0.0 && !history_value(comp, GROUP_INPUT[g], t - d->tau[g], &value)) {
+            history_refused(comp, g, t);
+            return FMU_ERROR;
         }
-        d->hist_v[d->hist_head][g] = value;
+        held[g] = value;
         /* An undelayed group reads the live input like an undelayed entry; a delayed one
          * makes the derivatives jump here if its held value changed. */
         if (d->tau[g] > 0.0 && had_before && value != before[g]) d->event_pending = 1;
     }
-    return fmi2OK;
-}
-
-/* Newest sample recorded at or before t (the oldest if t precedes them all). model_derivatives
- * is evaluated at the newest sample's time or later, so this normally returns at once; CVode
- * may evaluate beyond the next update, where the held value still applies. */
-static int me_sample_at(const ModelData *d, double t) {
-    int n, idx = d->hist_head;
-    for (n = 1; n < d->hist_count && d->hist_t[idx] > t; n++)
-        idx = (idx + HIST_LEN - 1) % HIST_LEN;
-    return idx;
+    rec = hist_record(comp, d->hist_count - 1);
+    for (g = 0; g < N_GROUPS; g++) rec[1 + N_U + g] = held[g];
+    return FMU_OK;
 }
 #endif
 
-fmi2Status model_inputs_set(ModelInstance *comp) {
+FmuStatus model_inputs_set(ModelInstance *comp) {
 #if ME_DELAY_BUFFER
-    if (comp->type == fmi2ModelExchange && N_GROUPS > 0) return me_record_inputs(comp);
+    if (comp->interface == FMU_MODEL_EXCHANGE && N_GROUPS > 0) return me_record_inputs(comp);
 #else
     (void)comp;
 #endif
-    return fmi2OK; /* co-simulation samples the inputs in model_do_step */
+    return FMU_OK; /* co-simulation samples the inputs in model_do_step */
 }
 
 int model_step_event(const ModelInstance *comp) { return comp->s.data.event_pending; }
 
 void model_event_update(ModelInstance *comp) { comp->s.data.event_pending = 0; }
 
-void model_derivatives(const ModelInstance *comp, double t, const double *x, double *dx) {
+/* dx = A x + B~ u with perturbation inputs u. The delayed inputs are the held values of the
+ * input history (model exchange with ME_DELAY_BUFFER), the interpolated history
+ * (co-simulation) or the outputs of the Pade states (ME_DELAY_BUFFER = 0). With
+ * `homogeneous` the function is the linear part only, the map (x, u) -> dx whose values are
+ * the directional derivatives: a delayed input depends on past inputs only, so a delayed B
+ * entry contributes nothing (the Pade states are states, so there it is their rows). */
+static void linear_rhs(const ModelInstance *comp, double t, const double *x, const double *u,
+                       int homogeneous, double *dx) {
     const ModelData *d = &comp->s.data;
-    double u[N_U], v[N_GROUPS_ALLOC] = {0.0}; /* zeroed: a model without delays reads none */
+    double v[N_GROUPS_ALLOC] = {0.0}; /* zeroed: a model without delays reads none */
     int g, i;
-    perturbation_inputs(comp, u);
-#if ME_DELAY_BUFFER
-    (void)i;
-    if (N_GROUPS > 0) {
-        int idx = d->hist_count > 0 ? me_sample_at(d, t) : -1;
+    if (comp->interface == FMU_CO_SIMULATION || ME_DELAY_BUFFER) {
+        long idx = (!homogeneous && comp->interface == FMU_MODEL_EXCHANGE && N_GROUPS > 0)
+            ? hist_sample_at(comp, t) : -1;
         for (g = 0; g < N_GROUPS; g++) {
             int k = GROUP_INPUT[g];
-            /* before the first update (e.g. in initialisation mode) there is no history */
-            v[g] = (d->tau[g] > 0.0 && idx >= 0) ? d->hist_v[idx][g] - d->trim_u[k] : u[k];
-        }
-    }
-#else
-    (void)t;
-    for (g = 0; g < N_GROUPS; g++) {
-        const double *z = x + N_X + g * PADE_ORDER;
-        double *dz = dx + N_X + g * PADE_ORDER;
-        double ug = u[GROUP_INPUT[g]];
-        if (d->tau[g] > 0.0) {
-            /* dz/dt = (Ac z + b e_n u) / tau, v = c z + d u (time scaled by tau) */
-            double rate = 1.0 / d->tau[g], last = d->pade_b * ug, out = d->pade_d * ug;
-            for (i = 0; i < PADE_ORDER; i++) {
-                last -= d->pade_a[i] * z[i];
-                out += d->pade_c[i] * z[i];
-                if (i + 1 < PADE_ORDER) dz[i] = rate * z[i + 1];
+            double value;
+            if (d->tau[g] <= 0.0) {
+                v[g] = u[k];
+            } else if (homogeneous) {
+                v[g] = 0.0;
+            } else if (comp->interface == FMU_MODEL_EXCHANGE) {
+                /* before the first update (e.g. in initialisation mode) there is no history */
+                v[g] = idx >= 0 ? hist_record(comp, idx)[1 + N_U + g] - d->trim_u[k] : u[k];
+            } else {
+                v[g] = (d->hist_count > 0 && history_value(comp, k, t - d->tau[g], &value))
+                    ? value - d->trim_u[k] : u[k];
             }
-            dz[PADE_ORDER - 1] = rate * last;
-            v[g] = out;
-        } else {
-            /* no delay: the group passes its input, its states decay (they start at 0) */
-            for (i = 0; i < PADE_ORDER; i++) dz[i] = -z[i];
-            v[g] = ug;
+        }
+        for (i = N_X; i < N_STATES; i++) dx[i] = 0.0; /* Pade states unused */
+    } else {
+        for (g = 0; g < N_GROUPS; g++) {
+            const double *z = x + N_X + g * PADE_ORDER;
+            double *dz = dx + N_X + g * PADE_ORDER;
+            double ug = u[GROUP_INPUT[g]];
+            if (d->tau[g] > 0.0) {
+                /* dz/dt = (Ac z + b e_n u) / tau, v = c z + d u (time scaled by tau) */
+                double rate = 1.0 / d->tau[g], last = d->pade_b * ug, out = d->pade_d * ug;
+                for (i = 0; i < PADE_ORDER; i++) {
+                    last -= d->pade_a[i] * z[i];
+                    out += d->pade_c[i] * z[i];
+                    if (i + 1 < PADE_ORDER) dz[i] = rate * z[i + 1];
+                }
+                dz[PADE_ORDER - 1] = rate * last;
+                v[g] = out;
+            } else {
+                /* no delay: the group passes its input, its states decay (they start at 0) */
+                for (i = 0; i < PADE_ORDER; i++) dz[i] = -z[i];
+                v[g] = ug;
+            }
         }
     }
-#endif
     state_derivative(d, x, u, v, dx);
+}
+
+void model_derivatives(const ModelInstance *comp, double t, const double *x, double *dx) {
+    double u[N_U];
+    perturbation_inputs(comp, u);
+    linear_rhs(comp, t, x, u, 0, dx);
+}
+
+/* Exact directional derivatives: der(x) and y are affine in (x, u) for a given input
+ * history, so the partial derivatives along the seed are the linear part evaluated at the
+ * seed: A dx + B~ du (delayed entries excluded, see linear_rhs) and C dx + D du. */
+FmuStatus model_directional_derivative(const ModelInstance *comp, const double *seed,
+                                       double *sensitivity) {
+    const ModelData *d = &comp->s.data;
+    double dx[N_STATES_ALLOC], du[N_U], ddx[N_STATES_ALLOC];
+    int i, j, k;
+    for (i = 0; i < N_STATES; i++) dx[i] = seed[VR_STATE0 + i];
+    for (k = 0; k < N_U; k++) du[k] = seed[VR_U0 + k];
+    linear_rhs(comp, comp->s.time, dx, du, 1, ddx);
+    for (i = 0; i < N_STATES; i++) sensitivity[VR_DERIV0 + i] = ddx[i];
+    for (i = 0; i < N_Y; i++) {
+        double y = 0.0;
+        for (j = 0; j < N_X; j++) y += d->C[i][j] * dx[j];
+        for (k = 0; k < N_U; k++) y += d->D[i][k] * du[k];
+        sensitivity[VR_Y0 + i] = y;
+    }
+    return FMU_OK;
 }
 
 /* ------------------------------------------------------------------------------------------ */
@@ -403,7 +501,7 @@ done:
 
 /* Phi = exp(A h) and Psi = int_0^h exp(A s) ds from one exponential of the block matrix
  * [[A h, I h], [0, 0]] (Van Loan): exp = [[Phi, Psi], [0, I]]. */
-static fmi2Status discretise(ModelInstance *comp, double h) {
+static FmuStatus discretise(ModelInstance *comp, double h) {
     ModelData *d = &comp->s.data;
     const int n = 2 * N_X;
     double *M = calloc((size_t)n * n, sizeof(double));
@@ -426,16 +524,16 @@ static fmi2Status discretise(ModelInstance *comp, double h) {
     free(M);
     free(E);
     if (!ok) {
-        fmu_log(comp, fmi2Error, "logError",
+        fmu_log(comp, FMU_ERROR, "logError",
                 "matrix exponential for the step %g s failed (non-finite A?)", h);
-        return fmi2Error;
+        return FMU_ERROR;
     }
     d->h_zoh = h;
     d->zoh_valid = 1;
-    return fmi2OK;
+    return FMU_OK;
 }
 
-fmi2Status model_do_step(ModelInstance *comp, double h) {
+FmuStatus model_do_step(ModelInstance *comp, double h) {
     ModelData *d = &comp->s.data;
     double u_abs[N_U], u[N_U], v[N_GROUPS_ALLOC] = {0.0}, f[N_X], x_new[N_X];
     double *x = comp->s.r + VR_STATE0;
@@ -444,14 +542,14 @@ fmi2Status model_do_step(ModelInstance *comp, double h) {
     /* Reuse the discretisation for steps equal to rounding (a time grid t0 + k h gives
      * steps that differ in the last bits); the effect of such a difference is below 1e-13. */
     if (!d->zoh_valid || fabs(h - d->h_zoh) > 1e-13 * h) {
-        if (discretise(comp, h) != fmi2OK) return fmi2Error;
+        if (discretise(comp, h) != FMU_OK) return FMU_ERROR;
     }
     for (k = 0; k < N_U; k++) {
         u_abs[k] = R(comp, VR_U0 + k);
         u[k] = u_abs[k] - d->trim_u[k];
     }
-    if (N_GROUPS > 0) history_append(d, comp->s.time, u_abs);
-    if (delayed_inputs(comp, comp->s.time, v) != fmi2OK) return fmi2Error;
+    if (N_GROUPS > 0 && !history_append(comp, comp->s.time, u_abs)) return FMU_ERROR;
+    if (delayed_inputs(comp, comp->s.time, v) != FMU_OK) return FMU_ERROR;
     /* forcing B~ u held over the step, then x+ = Phi x + Psi (B~ u) */
     for (i = 0; i < N_X; i++) {
         double sum = 0.0;
@@ -468,15 +566,15 @@ fmi2Status model_do_step(ModelInstance *comp, double h) {
     }
     for (i = 0; i < N_X; i++) {
         if (!isfinite(x_new[i])) {
-            /* fmi2Discard (FMI 2.0): nothing of this step was computed; time stays */
-            fmu_log(comp, fmi2Discard, "logStatusDiscard",
+            /* discard: nothing of this step was computed; time stays */
+            fmu_log(comp, FMU_DISCARD, "logStatusDiscard",
                     "state became non-finite at t = %.6g s (unstable model?)", comp->s.time + h);
-            return fmi2Discard;
+            return FMU_DISCARD;
         }
         x[i] = x_new[i];
     }
     comp->s.time += h;
-    return fmi2OK;
+    return FMU_OK;
 }
 
 /* ------------------------------------------------------------------------------------------ */
@@ -490,23 +588,8 @@ void model_calculate_values(ModelInstance *comp) {
     int i, j, k;
 
     perturbation_inputs(comp, u);
-    if (comp->type == fmi2ModelExchange) {
-        model_derivatives(comp, comp->s.time, x, dx);
-    } else {
-        /* Co-simulation has no Pade states: der(x) uses the buffered delayed inputs. */
-        double v[N_GROUPS_ALLOC] = {0.0};
-        double value;
-        int g;
-        for (g = 0; g < N_GROUPS; g++) {
-            int kk = GROUP_INPUT[g];
-            if (d->hist_count == 0 ||
-                !history_value(d, kk, comp->s.time - d->tau[g], &value))
-                value = R(comp, VR_U0 + kk);
-            v[g] = value - d->trim_u[kk];
-        }
-        state_derivative(d, x, u, v, dx);
-        for (i = N_X; i < N_STATES; i++) dx[i] = 0.0;
-    }
+    /* co-simulation has no Pade states: der(x) uses the interpolated input history */
+    linear_rhs(comp, comp->s.time, x, u, 0, dx);
     for (i = 0; i < N_Y; i++) {
         double y = d->trim_y[i];
         for (j = 0; j < N_X; j++) y += d->C[i][j] * x[j];

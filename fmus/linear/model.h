@@ -16,9 +16,14 @@
  * delays when exported with ME_DELAY_BUFFER = 1. */
 #define MODEL_HAS_EVENT_HOOKS 1
 
+/* Exact directional derivatives from A, B, C, D (fmus/linear/README.md). */
+#define MODEL_HAS_DIRECTIONAL_DERIVATIVE 1
+
 /* C has no zero-length arrays: a model without delays still gets one (unused) slot. */
 #define N_GROUPS_ALLOC (N_GROUPS > 0 ? N_GROUPS : 1)
 #define PADE_ALLOC (PADE_ORDER > 0 ? PADE_ORDER : 1)
+/* doubles per history record: time, inputs, delayed input of each group */
+#define HIST_WIDTH (1 + N_U + N_GROUPS_ALLOC)
 
 typedef struct {
     /* State-space matrices in the FMU's units (SI states, % inputs, SI outputs), assembled
@@ -45,22 +50,22 @@ typedef struct {
     double Phi[N_X][N_X];
     double Psi[N_X][N_X];
 
-    /* Ring buffer of the inputs at past input updates: in co-simulation one sample per
-     * communication point (fmi2DoStep), in model exchange with ME_DELAY_BUFFER one per
-     * fmi2SetReal of the inputs at a new time (an update at the same time overwrites). An
-     * instance is either one or the other, so both use the same arrays. */
-    double hist_t[HIST_LEN];
-    double hist_u[HIST_LEN][N_U];
-    int hist_head;    /* index of the newest sample */
-    int hist_count;   /* number of valid samples */
-    int hist_dropped; /* 1 once the oldest sample has been overwritten */
+    /* Input history, a time-stamped list that grows with the number of updates and is
+     * pruned of samples no delay can reach any more: in co-simulation one sample per
+     * communication point (fmi2DoStep / fmi3DoStep), in model exchange with
+     * ME_DELAY_BUFFER one per input update at a new time (an update at the same time
+     * overwrites). It lives in the boilerplate's growable storage (comp->store, saved with
+     * FMU states); sample i of the list is the record of HIST_WIDTH doubles at
+     * comp->store[(hist_first + i) * HIST_WIDTH]: time, the N_U absolute inputs and, in
+     * model exchange, the delayed input each group holds from that sample on. */
+    long hist_first;     /* record index of the oldest kept sample */
+    long hist_count;     /* number of kept samples */
+    int hist_pruned;     /* 1 once samples have been dropped from the front */
+    double hist_horizon; /* how far back any lookup may reach: 2 x the largest delay, s */
 
-    /* Model exchange with ME_DELAY_BUFFER: the delayed input (absolute) each group holds from
-     * the time of a sample until the next update, u(t_k - tau) interpolated in the history
-     * when sample k was recorded; and whether a recorded update changed a delayed input since
-     * the last event (the derivatives jumped: fmi2CompletedIntegratorStep asks for an event
-     * so that the integrator restarts there). */
-    double hist_v[HIST_LEN][N_GROUPS_ALLOC];
+    /* Model exchange with ME_DELAY_BUFFER: a recorded update changed a delayed input since
+     * the last event (the derivatives jumped: the completed integrator step asks for an
+     * event so that the integrator restarts there). */
     int event_pending;
 } ModelData;
 

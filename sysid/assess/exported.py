@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import os
 import tempfile
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Iterable, Mapping
 
@@ -36,7 +38,10 @@ from sysid.assess.envelopes import MUAD, Envelope, check_envelope, load_envelope
 from sysid.assess.metrics import j_rms, theil_inequality
 
 __all__ = ["simulate_exported", "roundtrip_error", "compare_with_truth", "envelope_check",
-           "verification_inputs"]
+           "verification_inputs", "directional_jacobian", "EXPORTED_FMI_VERSIONS"]
+
+#: FMI versions of the exported FMUs these checks run (through fmpy).
+EXPORTED_FMI_VERSIONS = ("2.0", "3.0")
 
 
 # ------------------------------------------------------------------------------------------
@@ -55,6 +60,21 @@ def _time_grid(inputs: xr.Dataset) -> np.ndarray:
     return t
 
 
+def _check_crc(path: Path) -> None:
+    """FMUError unless every member of the archive inflates to its recorded CRC (a
+    corrupted member otherwise surfaces as zipfile's BadZipFile or zlib's error from inside
+    fmpy's extraction)."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            bad = zf.testzip()
+    except (zipfile.BadZipFile, zlib.error, OSError, EOFError, ValueError,
+            NotImplementedError) as exc:
+        raise FMUError(f"exported FMU {path} is corrupted ({type(exc).__name__}: {exc})"
+                       ) from None
+    if bad is not None:
+        raise FMUError(f"exported FMU {path} is corrupted: member {bad!r} fails its CRC check")
+
+
 class _Exported:
     """The FMI view of an exported FMU: names, value references, units, trims."""
 
@@ -65,7 +85,9 @@ class _Exported:
         if not self.path.is_file():
             raise FMUError(f"exported FMU {self.path} does not exist")
         # Refuse hostile or broken archives before fmpy reads or extracts anything.
-        inspect_archive(self.path)
+        self.fmi_version = inspect_archive(self.path, fmi_versions=EXPORTED_FMI_VERSIONS
+                                           )["fmi_version"]
+        _check_crc(self.path)
         try:
             self.md = read_model_description(str(self.path), validate=False)
         except Exception as exc:  # fmpy raises plain exceptions for broken descriptions
@@ -172,14 +194,63 @@ def _run_cs(fmu: _Exported, t: np.ndarray, U: np.ndarray, step_size: float | Non
         return _run_cs_in(fmu, t, U, step_size, params, unzip)
 
 
+def _slave(fmu: _Exported, unzip: str):
+    """An fmpy co-simulation instance of the FMU's version with FMI-2-style methods."""
+    from fmpy.fmi2 import FMU2Slave  # deferred: fmpy is slow to import
+    from fmpy.fmi3 import FMU3Slave
+
+    ident = fmu.md.coSimulation.modelIdentifier
+    if fmu.fmi_version == "2.0":
+        return FMU2Slave(guid=fmu.md.guid, unzipDirectory=unzip, modelIdentifier=ident,
+                         instanceName="sysid_validation")
+    return _Fmi3Slave(FMU3Slave(guid=fmu.md.guid, unzipDirectory=unzip, modelIdentifier=ident,
+                                instanceName="sysid_validation"))
+
+
+class _Fmi3Slave:
+    """The calls of :func:`_run_cs_in` on an FMI 3.0 instance (fmpy's FMU3Slave)."""
+
+    def __init__(self, slave):
+        self.slave = slave
+        self.start = 0.0
+
+    def instantiate(self):
+        self.slave.instantiate()
+
+    def setupExperiment(self, startTime=0.0):
+        self.start = startTime
+
+    def setReal(self, vr, values):
+        self.slave.setFloat64(vr, values)
+
+    def getReal(self, vr):
+        return self.slave.getFloat64(vr)
+
+    def enterInitializationMode(self):
+        self.slave.enterInitializationMode(startTime=self.start)
+
+    def exitInitializationMode(self):
+        self.slave.exitInitializationMode()
+
+    def doStep(self, currentCommunicationPoint, communicationStepSize):
+        self.slave.doStep(currentCommunicationPoint=currentCommunicationPoint,
+                          communicationStepSize=communicationStepSize)
+
+    def terminate(self):
+        self.slave.terminate()
+
+    def freeInstance(self):
+        self.slave.freeInstance()
+
+    def freeLibrary(self):
+        self.slave.freeLibrary()
+
+
 def _run_cs_in(fmu: _Exported, t, U, step_size, params: dict, unzip: str):
     from fmpy import extract  # deferred: fmpy is slow to import
-    from fmpy.fmi2 import FMU2Slave
 
     extract(str(fmu.path), unzipdir=unzip)
-    slave = FMU2Slave(guid=fmu.md.guid, unzipDirectory=unzip,
-                      modelIdentifier=fmu.md.coSimulation.modelIdentifier,
-                      instanceName="sysid_validation")
+    slave = _slave(fmu, unzip)
     vr_in = [fmu.vars[n].valueReference for n in fmu.inputs]
     vr_out = [fmu.vars[n].valueReference for n in fmu.outputs]
     dt = float(t[1] - t[0])
@@ -231,6 +302,65 @@ def _run_me(fmu: _Exported, t: np.ndarray, U: np.ndarray, rtol: float, params: d
     except Exception as exc:
         raise FMUError(f"model-exchange simulation of {fmu.path.name} failed: {exc}") from None
     return np.column_stack([np.interp(tt, res["time"], res[n]) for n in fmu.outputs])
+
+
+def directional_jacobian(fmu_path) -> xr.Dataset:
+    """The Jacobians of an FMU from its directional derivatives, after initialisation.
+
+    One ``fmi2GetDirectionalDerivative`` / ``fmi3GetDirectionalDerivative`` call per state and
+    input (seed 1) on a model-exchange instance at its start values, through fmpy.
+
+    Returns
+    -------
+    xr.Dataset
+        ``A (state_dot, state)``, ``B (state_dot, input)``, ``C (output, state)``,
+        ``D (output, input)`` in the FMU's own units, labelled with the FMU's variable names
+        (``state_dot`` holds the state names, the rows being their derivatives).
+    """
+    from fmpy import extract  # deferred: fmpy is slow to import
+    from fmpy.fmi2 import FMU2Model
+    from fmpy.fmi3 import FMU3Model
+
+    fmu = _Exported(fmu_path)
+    if fmu.md.modelExchange is None:
+        raise FMUError(f"{fmu.path.name} has no model-exchange interface")
+    derivs = [d.variable for d in fmu.md.derivatives]
+    states = [v.derivative for v in derivs]
+    vr = {v.name: v.valueReference for v in fmu.md.modelVariables}
+    unknowns = [v.valueReference for v in derivs] + [vr[n] for n in fmu.outputs]
+    knowns = [s_.name for s_ in states] + list(fmu.inputs)
+    columns = []
+    with tempfile.TemporaryDirectory(prefix="sysid-fmu-") as unzip:
+        extract(str(fmu.path), unzipdir=unzip)
+        kwargs = dict(guid=fmu.md.guid, unzipDirectory=unzip, instanceName="sysid_jacobian",
+                      modelIdentifier=fmu.md.modelExchange.modelIdentifier)
+        model = FMU2Model(**kwargs) if fmu.fmi_version == "2.0" else FMU3Model(**kwargs)
+        try:
+            model.instantiate()
+            if fmu.fmi_version == "2.0":
+                model.setupExperiment(startTime=0.0)
+                model.enterInitializationMode()
+            else:
+                model.enterInitializationMode(startTime=0.0)
+            model.exitInitializationMode()
+            for name in knowns:
+                columns.append(model.getDirectionalDerivative(unknowns, [vr[name]], [1.0]))
+            model.terminate()
+        except Exception as exc:
+            raise FMUError(f"directional derivatives of {fmu.path.name} failed: {exc}") from None
+        finally:
+            model.freeInstance()
+            model.freeLibrary()
+    J = np.array(columns, dtype=float).T  # (unknowns, knowns)
+    nx = len(states)
+    names = [s_.name for s_ in states]
+    return xr.Dataset(
+        {"A": (("state_dot", "state"), J[:nx, :nx]), "B": (("state_dot", "input"), J[:nx, nx:]),
+         "C": (("output", "state"), J[nx:, :nx]), "D": (("output", "input"), J[nx:, nx:])},
+        coords={"state_dot": names, "state": names, "input": list(fmu.inputs),
+                "output": list(fmu.outputs)},
+        attrs={"fmu": fmu.path.name, "fmi_version": fmu.fmi_version,
+               "units": "the FMU's own (SI for the exported models)"})
 
 
 # ------------------------------------------------------------------------------------------

@@ -32,19 +32,24 @@ from sysid.core.errors import FMUError
 from sysid.core.paths import cache_dir, fmu_sources_dir
 from sysid.core.units import DERIVATIVE_UNIT, DISPLAY_UNITS, UNITS
 from sysid.core.util import atomic_path
-from sysid.fmi.description import (FmuDescription, ScalarVariable, UnitDefinition,
-                                   fmi2_model_description, variables_header)
+from sysid.fmi.description import (FMI_VERSIONS, FmuDescription, ScalarVariable,
+                                   UnitDefinition, boilerplate_sources, build_description,
+                                   model_description, variables_header)
 
 #: Bump when the generated files change shape, so that cached FMUs are rebuilt
-#: (2: one generator, sysid.fmi.description, for the truth and the exported FMUs).
-GENERATOR_VERSION = "2"
+#: (2: one generator, sysid.fmi.description, for the truth and the exported FMUs;
+#: 3: the version-independent core fmu_core.c, FMI 3.0).
+GENERATOR_VERSION = "3"
 
 #: Compiler flags (part of the cache key). -fno-math-errno lets sqrt compile to one
 #: instruction; hidden visibility exports only the FMI functions (FMI2_Export).
 CFLAGS = ("-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-fno-math-errno")
 
-#: The FMI 2.0 headers shipped with fmpy, copied into the FMU's sources/ folder.
-FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+#: The FMI headers shipped with fmpy, per FMI version, copied into the FMU's sources/.
+FMI_HEADERS = {2: ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"),
+               3: ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h")}
+#: Shared boilerplate headers (fmus/common) every FMU includes.
+COMMON_HEADERS = ("fmu_model.h",)
 
 KINDS = ("parameter", "input", "state", "output")
 
@@ -184,8 +189,8 @@ def _c_name(name: str) -> str:
     return name.replace("der(", "der_").replace(")", "")
 
 
-def describe(model: ModelSources, guid: str, version: str = sysid.__version__
-             ) -> FmuDescription:
+def describe(model: ModelSources, guid: str, version: str = sysid.__version__,
+             fmi_version: int = 2) -> FmuDescription:
     """The FMU of a model folder in the data model of :mod:`sysid.fmi.description`."""
     variables = tuple(
         ScalarVariable(name=v.name, c_name=_c_name(v.name), value_reference=v.vr, kind=v.kind,
@@ -200,7 +205,7 @@ def describe(model: ModelSources, guid: str, version: str = sysid.__version__
     return FmuDescription(
         model_name=model.name, identifier=model.identifier, guid=guid,
         description=model.description, generation_tool=f"sysid {version}",
-        source_files=("fmi2_functions.c", *model.sources), variables=variables,
+        source_files=(*boilerplate_sources(fmi_version), *model.sources), variables=variables,
         units=tuple(UnitDefinition.of(u) for u in sorted({v.unit for v in model.variables})),
         experiment=experiment)
 
@@ -210,20 +215,21 @@ def generate_header(model: ModelSources, guid: str) -> str:
     return variables_header(describe(model, guid))
 
 
-def generate_model_description(model: ModelSources, guid: str, version: str) -> str:
-    """The ``modelDescription.xml`` (FMI 2.0, model exchange and co-simulation)."""
-    return fmi2_model_description(describe(model, guid, version))
+def generate_model_description(model: ModelSources, guid: str, version: str,
+                               fmi_version: int = 2) -> str:
+    """The ``modelDescription.xml`` (FMI 2.0 or 3.0, model exchange and co-simulation)."""
+    return model_description(describe(model, guid, version, fmi_version), fmi_version)
 
 
 # ------------------------------------------------------------------------------------------
 # compiler, hashing, packaging
 
 def fmi_header_dir() -> Path:
-    """Folder of the FMI 2.0 C headers installed with fmpy."""
+    """Folder of the FMI 2.0 and 3.0 C headers installed with fmpy."""
     import fmpy  # deferred: fmpy (native helpers, 0.14 s), needed only to build
 
     folder = Path(fmpy.__file__).parent / "c-code"
-    missing = [h for h in FMI_HEADERS if not (folder / h).is_file()]
+    missing = [h for v in FMI_VERSIONS for h in FMI_HEADERS[v] if not (folder / h).is_file()]
     if missing:
         raise FMUError(f"FMI headers {missing} not found in {folder}; reinstall fmpy")
     return folder
@@ -244,15 +250,16 @@ def find_compiler() -> list[str]:
                    "(e.g. gcc or clang) to build the FMU from its sources")
 
 
-def platform_folder() -> tuple[str, str]:
-    """FMI 2.0 binaries folder name and shared-library extension of this machine."""
-    from fmpy import platform, sharedLibraryExtension  # deferred: fmpy
+def platform_folder(fmi_version: int = 2) -> tuple[str, str]:
+    """Binaries folder name (FMI 2.0: e.g. ``linux64``; FMI 3.0: the platform tuple, e.g.
+    ``x86_64-linux``) and shared-library extension of this machine."""
+    from fmpy import platform, platform_tuple, sharedLibraryExtension  # deferred: fmpy
 
-    return platform, sharedLibraryExtension
+    return (platform if fmi_version == 2 else platform_tuple), sharedLibraryExtension
 
 
-def _source_files(model: ModelSources, common: Path) -> list[Path]:
-    files = [common / "fmi2_functions.c", common / "fmu_model.h"]
+def _source_files(model: ModelSources, common: Path, fmi_version: int = 2) -> list[Path]:
+    files = [common / n for n in (*boilerplate_sources(fmi_version), *COMMON_HEADERS)]
     files += [model.folder / name for name in (*model.sources, *model.headers)]
     for path in files:
         if not path.is_file():
@@ -260,13 +267,14 @@ def _source_files(model: ModelSources, common: Path) -> list[Path]:
     return files
 
 
-def source_hash(model: ModelSources, common: Path) -> str:
+def source_hash(model: ModelSources, common: Path, fmi_version: int = 2) -> str:
     """SHA-256 over the sources, the variable table, the FMI headers and the flags."""
     digest = hashlib.sha256()
-    digest.update(f"generator {GENERATOR_VERSION}\nflags {' '.join(CFLAGS)}\n".encode())
+    digest.update(f"generator {GENERATOR_VERSION}\nflags {' '.join(CFLAGS)}\n"
+                  f"fmi {fmi_version}\n".encode())
     headers = fmi_header_dir()
-    inputs = [*_source_files(model, common), model.folder / "variables.csv",
-              model.folder / "model.toml", *(headers / h for h in FMI_HEADERS)]
+    inputs = [*_source_files(model, common, fmi_version), model.folder / "variables.csv",
+              model.folder / "model.toml", *(headers / h for h in FMI_HEADERS[fmi_version])]
     for path in inputs:
         digest.update(path.name.encode() + b"\0" + path.read_bytes() + b"\0")
     return digest.hexdigest()
@@ -276,19 +284,23 @@ def _guid(digest: str) -> str:
     return "{" + str(uuid.UUID(hex=digest[:32])) + "}"
 
 
-def _compile(model: ModelSources, common: Path, workdir: Path) -> tuple[Path, Path]:
+def _compile(model: ModelSources, common: Path, workdir: Path,
+             fmi_version: int = 2) -> tuple[Path, Path]:
     """Generate the header, compile the shared library; return (library, sources dir)."""
     src = workdir / "sources"
     src.mkdir()
-    for path in _source_files(model, common):
+    for path in _source_files(model, common, fmi_version):
         shutil.copy2(path, src / path.name)
-    for name in FMI_HEADERS:
+    for name in FMI_HEADERS[fmi_version]:
         shutil.copy2(fmi_header_dir() / name, src / name)
-    digest = source_hash(model, common)
-    (src / "model_variables.h").write_text(generate_header(model, _guid(digest)))
-    _, ext = platform_folder()
+    digest = source_hash(model, common, fmi_version)
+    desc = describe(model, _guid(digest), sysid.__version__, fmi_version)
+    (src / "model_variables.h").write_text(variables_header(desc))
+    if fmi_version == 3:
+        (src / "buildDescription.xml").write_text(build_description(desc))
+    _, ext = platform_folder(fmi_version)
     library = workdir / f"{model.identifier}{ext}"
-    c_files = [src / "fmi2_functions.c", *(src / n for n in model.sources)]
+    c_files = [src / n for n in desc.source_files]
     compile_shared_library(c_files, src, library, what=f"the {model.identifier} FMU",
                            log=cache_dir() / f"build-{model.identifier}.log")
     return library, src
@@ -325,39 +337,51 @@ def compile_shared_library(c_files, include_dir: Path, library: Path, *, what: s
     return library
 
 
-def fmu_cache_path(model: ModelSources, common: Path) -> Path:
+def fmu_cache_path(model: ModelSources, common: Path, fmi_version: int = 2) -> Path:
     """Where the FMU built from these sources is (or will be) cached."""
-    return cache_dir() / "fmus" / f"{model.identifier}-{source_hash(model, common)[:16]}.fmu"
+    suffix = "" if fmi_version == 2 else f"-fmi{fmi_version}"
+    digest = source_hash(model, common, fmi_version)[:16]
+    return cache_dir() / "fmus" / f"{model.identifier}{suffix}-{digest}.fmu"
+
+
+def _check_version(fmi_version) -> int:
+    if fmi_version not in FMI_VERSIONS:
+        raise FMUError(f"fmi_version must be one of {FMI_VERSIONS}, got {fmi_version!r}")
+    return int(fmi_version)
 
 
 def build_model_fmu(model_folder: str | os.PathLike, *, force: bool = False,
-                    common_folder: str | os.PathLike | None = None) -> Path:
+                    common_folder: str | os.PathLike | None = None,
+                    fmi_version: int = 2) -> Path:
     """Build (or reuse from the cache) the FMU of the model in ``model_folder``.
 
     ``model_folder`` holds ``model.toml``, ``variables.csv``, ``model.h`` and the C sources;
-    ``common_folder`` defaults to ``fmus/common``. Returns the path of the cached ``.fmu``.
+    ``common_folder`` defaults to ``fmus/common``; ``fmi_version`` 2 (default) or 3 (model
+    exchange and co-simulation either way). Returns the path of the cached ``.fmu``.
     Raises :class:`~sysid.core.errors.FMUError` naming the problem (no compiler, compile error...).
     """
+    fmi_version = _check_version(fmi_version)
     model = read_model(model_folder)
     common = Path(common_folder) if common_folder else fmu_sources_dir() / "common"
-    target = fmu_cache_path(model, common)
+    target = fmu_cache_path(model, common, fmi_version)
     if target.is_file() and not force:
         return target
-    digest = source_hash(model, common)
+    digest = source_hash(model, common, fmi_version)
     guid = _guid(digest)
     with tempfile.TemporaryDirectory(prefix=f"sysid-build-{model.identifier}-") as tmp:
         workdir = Path(tmp)
-        library, src = _compile(model, common, workdir)
-        package_fmu(target, generate_model_description(model, guid, sysid.__version__), library,
-                    model.identifier, src)
+        library, src = _compile(model, common, workdir, fmi_version)
+        package_fmu(target, generate_model_description(model, guid, sysid.__version__,
+                                                       fmi_version),
+                    library, model.identifier, src, fmi_version=fmi_version)
     return target
 
 
 def package_fmu(target: Path, description: str, library: Path, identifier: str,
-                sources: Path) -> Path:
+                sources: Path, *, fmi_version: int = 2) -> Path:
     """Write the ``.fmu`` archive atomically: ``modelDescription.xml``, the binary for this
     platform and every file of ``sources`` (a source-code FMU other tools can rebuild)."""
-    platform, ext = platform_folder()
+    platform, ext = platform_folder(fmi_version)
     with atomic_path(target) as partial:
         with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as zf:
             zf.writestr("modelDescription.xml", description)
@@ -367,7 +391,7 @@ def package_fmu(target: Path, description: str, library: Path, identifier: str,
     return target
 
 
-def build_fmu(force: bool = False, model: str = "helicopter") -> Path:
+def build_fmu(force: bool = False, model: str = "helicopter", fmi_version: int = 2) -> Path:
     """Build the truth helicopter FMU from ``fmus/`` (cached by source hash); its path.
 
     Parameters
@@ -376,5 +400,7 @@ def build_fmu(force: bool = False, model: str = "helicopter") -> Path:
         Rebuild even if an FMU with the same source hash is cached.
     model : str
         Model folder under ``fmus/`` (default ``"helicopter"``).
+    fmi_version : {2, 3}
+        FMI version of the FMU (both carry model exchange and co-simulation).
     """
-    return build_model_fmu(fmu_sources_dir() / model, force=force)
+    return build_model_fmu(fmu_sources_dir() / model, force=force, fmi_version=fmi_version)

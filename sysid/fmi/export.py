@@ -1,4 +1,4 @@
-"""Export identified linear models as FMI 2.0 FMUs (model exchange and co-simulation).
+"""Export identified linear models as FMI 2.0 or FMI 3.0 FMUs (model exchange and co-simulation).
 
 An exported FMU is the model of ``docs/data_model.md`` (``A B C D``, a delay on any B entry,
 trim) in the *same absolute units as the truth helicopter FMU*, so that a tool can swap one
@@ -16,14 +16,16 @@ for the other:
   assembled from the fixed parts and these parameters in ``model_initialize``, so a user can
   inspect and tune them before initialisation.
 
-The C code is the generic template ``fmus/linear`` plugged into the shared FMI 2.0
-boilerplate ``fmus/common`` (the same one the truth helicopter uses); the per-model numbers go
-into generated headers. The FMU is a source-code FMU: ``sources/`` holds every ``.c``/``.h``
-file (FMI headers and generated tables included) and ``modelDescription.xml`` lists the
-source files, so :func:`fmpy.build.build_platform_binary` can rebuild it anywhere. See
-``fmus/linear/README.md`` for the numerical choices (exact zero-order hold in co-simulation;
-in model exchange delays from an input history held between input updates, or optionally
-Pade approximants).
+The C code is the generic template ``fmus/linear`` plugged into the shared boilerplate
+``fmus/common`` (the same one the truth helicopter uses: ``fmu_core.c`` with
+``fmi2_functions.c`` or ``fmi3_functions.c``); the per-model numbers go into generated
+headers. The FMU is a source-code FMU: ``sources/`` holds every ``.c``/``.h`` file (FMI
+headers and generated tables included); FMI 2.0 lists the source files in
+``modelDescription.xml``, FMI 3.0 in ``sources/buildDescription.xml``, so
+:func:`fmpy.build.build_platform_binary` can rebuild it anywhere. Both versions provide exact
+directional derivatives (from A, B, C, D). See ``fmus/linear/README.md`` for the numerical
+choices (exact zero-order hold in co-simulation; in model exchange delays from an input
+history held between input updates, or optionally Pade approximants; a history that grows).
 """
 
 from __future__ import annotations
@@ -41,15 +43,15 @@ import numpy as np
 import xarray as xr
 
 import sysid
-from sysid.core.errors import FMUError, InputDataError, SysidError
+from sysid.core.errors import FMUError, InputDataError
 from sysid.core.paths import fmu_sources_dir
 from sysid.core.units import CHANNELS, DERIVATIVE_UNIT, UNITS, Unit, conversion_factor
 from sysid.core.util import Progress
-from sysid.fmi.build import (FMI_HEADERS, compile_shared_library, fmi_header_dir, package_fmu,
-                             platform_folder)
-from sysid.fmi.description import (FmuDescription, ScalarVariable, UnitDefinition, c_string,
-                                   fmi2_model_description, variables_header)
-from sysid.models import DELAY_BOUNDS
+from sysid.fmi.build import (COMMON_HEADERS, FMI_HEADERS, compile_shared_library,
+                             fmi_header_dir, package_fmu, platform_folder)
+from sysid.fmi.description import (FMI_VERSIONS, FmuDescription, ScalarVariable,
+                                   UnitDefinition, boilerplate_sources, build_description,
+                                   c_string, model_description, variables_header)
 
 __all__ = ["export_fmu", "ExportSpec", "export_spec", "DEFAULT_STEP", "DEFAULT_PADE_ORDER",
            "ME_DELAY_MODES"]
@@ -61,9 +63,8 @@ DEFAULT_PADE_ORDER = 6
 #: How model exchange represents the delays: "buffer" (input history, exact for inputs held
 #: between updates, the default) or "pade" (approximants with their own states).
 ME_DELAY_MODES = ("buffer", "pade")
-#: Files of the C template (fmus/linear) and of the shared boilerplate (fmus/common).
+#: Files of the C template (fmus/linear).
 TEMPLATE_FILES = ("model.c", "model.h")
-COMMON_FILES = ("fmi2_functions.c", "fmu_model.h")
 _MATRIX_CODE = {"A": 0, "B": 1, "C": 2, "D": 3, "delay": 4}
 
 
@@ -433,7 +434,7 @@ def _c_array(name: str, ctype: str, values, per_line: int = 6) -> str:
 
 
 def generate_dims(spec: ExportSpec, variables: list[FmuVariable], pade_order: int,
-                  history: int, me_delay: str = "buffer") -> str:
+                  me_delay: str = "buffer") -> str:
     """``linear_dims.h``: sizes and value-reference offsets of the exported model;
     ``pade_order`` is 0 with ``me_delay="buffer"`` (no Pade states)."""
     first = {}
@@ -448,7 +449,6 @@ def generate_dims(spec: ExportSpec, variables: list[FmuVariable], pade_order: in
         f"#define N_X {n_x}", f"#define N_U {n_u}", f"#define N_Y {n_y}",
         f"#define N_PAR {len(spec.parameters)}", f"#define N_GROUPS {len(spec.groups)}",
         f"#define PADE_ORDER {pade_order if spec.groups else 0}",
-        f"#define HIST_LEN {history}",
         "/* model exchange: delays from the input history (1) or Pade states (0) */",
         f"#define ME_DELAY_BUFFER {1 if me_delay == 'buffer' else 0}", "",
         f"#define VR_U0 {2 * n_states}", f"#define VR_Y0 {2 * n_states + n_u}",
@@ -529,57 +529,40 @@ def describe(spec: ExportSpec, variables: list[FmuVariable], units: dict, guid: 
         generation_tool=f"sysid {sysid.__version__}", source_files=tuple(source_files),
         variables=tuple(scalars), units=tuple(units[name] for name in sorted(units)),
         experiment=(("start", 0.0), ("stop", 10.0), ("step", float(step_size))),
-        completed_integrator_step_not_needed=not (me_delay == "buffer" and spec.groups))
+        completed_integrator_step_not_needed=not (me_delay == "buffer" and spec.groups),
+        provides_directional_derivative=True)
 
 
 def generate_model_description(spec: ExportSpec, variables: list[FmuVariable], units: dict,
                                guid: str, identifier: str, step_size: float,
-                               source_files: list[str], me_delay: str = "buffer") -> str:
-    """``modelDescription.xml`` (FMI 2.0, model exchange and co-simulation, source files)."""
-    return fmi2_model_description(describe(spec, variables, units, guid, identifier, step_size,
-                                           source_files, me_delay))
-
-
-def generate_build_description(identifier: str, source_files: list[str]) -> str:
-    """``sources/buildDescription.xml`` (the FMI 3.0 format, also read by tools for 2.0)."""
-    files = "\n".join(f'      <SourceFile name="{f}"/>' for f in source_files)
-    return ('<?xml version="1.0" encoding="UTF-8"?>\n'
-            '<fmiBuildDescription fmiVersion="3.0">\n'
-            f'  <BuildConfiguration modelIdentifier="{identifier}">\n'
-            '    <SourceFileSet language="C99">\n'
-            f"{files}\n"
-            "    </SourceFileSet>\n"
-            "  </BuildConfiguration>\n"
-            "</fmiBuildDescription>\n")
+                               source_files: list[str], me_delay: str = "buffer",
+                               fmi_version: int = 2) -> str:
+    """``modelDescription.xml`` (FMI 2.0 or 3.0, model exchange and co-simulation)."""
+    return model_description(describe(spec, variables, units, guid, identifier, step_size,
+                                      source_files, me_delay), fmi_version)
 
 
 # ------------------------------------------------------------------------------------------
 # compiling and packaging
 
 
-def compile_library(src: Path, identifier: str, out_dir: Path) -> Path:
-    """Compile ``src/*.c`` into the FMU's shared library with the machine's C compiler
-    (the same compiler and flags as the truth FMU). Raises FMUError with the compiler's
-    first error line."""
+def compile_library(src: Path, identifier: str, out_dir: Path,
+                    source_files: list[str] | None = None) -> Path:
+    """Compile the FMU's C files (``source_files`` in ``src``, default every ``*.c``) into its
+    shared library with the machine's C compiler (the same compiler and flags as the truth
+    FMU). Raises FMUError with the compiler's first error line."""
     _, ext = platform_folder()
-    return compile_shared_library(sorted(src.glob("*.c")), src, out_dir / f"{identifier}{ext}",
+    files = ([src / f for f in source_files] if source_files is not None
+             else sorted(src.glob("*.c")))
+    return compile_shared_library(files, src, out_dir / f"{identifier}{ext}",
                                   what=f"the exported FMU {identifier}")
-
-
-def _default_history(spec: ExportSpec, step_size: float) -> int:
-    """History samples: the largest delay the FMU may be tuned to (2x the largest identified
-    delay, at least 0.3 s, the physical bound of sysid.models.DELAY_BOUNDS) at a quarter of
-    the default step, at least 256."""
-    taus = [p[4] for p in spec.parameters if p[1] == "delay"]
-    horizon = max(DELAY_BOUNDS[1], 2.0 * max(taus, default=0.0))
-    return int(max(256, math.ceil(4.0 * horizon / step_size) + 2))
 
 
 def export_fmu(model_ds: xr.Dataset, path, *, fmi_version: int = 2,
                model_name: str | None = None, step_size: float = DEFAULT_STEP,
                me_delay: str = "buffer", pade_order: int = DEFAULT_PADE_ORDER,
-               history_samples: int | None = None, quiet: bool = True) -> Path:
-    """Export a model Dataset as one FMI 2.0 FMU (model exchange + co-simulation).
+               quiet: bool = True) -> Path:
+    """Export a model Dataset as one FMU (model exchange + co-simulation, FMI 2.0 or 3.0).
 
     Parameters
     ----------
@@ -588,30 +571,29 @@ def export_fmu(model_ds: xr.Dataset, path, *, fmi_version: int = 2,
         ``parameter`` table if identified).
     path : path-like
         The ``.fmu`` to write; written atomically (nothing appears if anything fails).
-    fmi_version : {2}
-        FMI 3.0 is not available (the shared boilerplate ``fmus/common`` is FMI 2.0 only).
+    fmi_version : {2, 3}
+        FMI version. Both carry the same C model, exact directional derivatives and the C
+        sources (FMI 2.0: ``<SourceFiles>`` in the model description; FMI 3.0:
+        ``sources/buildDescription.xml``).
     model_name : str, optional
         ``modelName`` and (as a C identifier) ``modelIdentifier``; default
         ``sysid_<method>``.
     step_size : float
-        Default communication step (s, DefaultExperiment); also sizes the delay buffer.
+        Default communication step (s, DefaultExperiment). The input history of the delays
+        grows as needed, so any step works.
     me_delay : {"buffer", "pade"}
         Delays in model exchange. ``"buffer"`` (default): an input history recorded at every
-        input update (``fmi2SetReal``); each delayed B entry sees ``u(t_k - tau)``
-        interpolated between the recorded samples and held until the next update, the
-        convention of :func:`sysid.models.simulate`, so CVode reproduces it to its tolerance
-        when the inputs are set at the sample instants (fmpy's ``simulate_fmu`` with a
-        sample-and-hold input); updates that change a delayed input raise step events.
-        ``"pade"``: Pade approximants with their own continuous states, a plain ODE
-        independent of when inputs are set, but only approximate (error ~0.17 tau / n per
-        unit step). See ``fmus/linear/README.md``.
+        input update (``fmi2SetReal`` / ``fmi3SetFloat64``); each delayed B entry sees
+        ``u(t_k - tau)`` interpolated between the recorded samples and held until the next
+        update, the convention of :func:`sysid.models.simulate`, so CVode reproduces it to
+        its tolerance when the inputs are set at the sample instants (fmpy's
+        ``simulate_fmu`` with a sample-and-hold input); updates that change a delayed input
+        raise step events. ``"pade"``: Pade approximants with their own continuous states,
+        a plain ODE independent of when inputs are set, but only approximate (error
+        ~0.17 tau / n per unit step). See ``fmus/linear/README.md``.
     pade_order : int
         Order of each Pade approximant with ``me_delay="pade"`` (1-8; CVode struggles with
         the stiff higher orders). Ignored with ``"buffer"``.
-    history_samples : int, optional
-        Capacity of the input history (co-simulation: one sample per communication step;
-        model exchange with ``"buffer"``: one per input update; default from the delays and
-        step).
     quiet : bool
         No progress lines.
 
@@ -624,14 +606,11 @@ def export_fmu(model_ds: xr.Dataset, path, *, fmi_version: int = 2,
     >>> from sysid.data.netcdf import read_campaign
     >>> model = read_campaign("campaign.nc")["models/frequency_domain"].to_dataset()
     >>> export_fmu(model, "frequency_domain.fmu")        # FMI 2.0, ME and CS, C sources inside
+    >>> export_fmu(model, "frequency_domain3.fmu", fmi_version=3)
     """
     progress = Progress(quiet=quiet)
-    if fmi_version == 3:
-        raise SysidError("FMI 3.0 export is not available: the exported models reuse the "
-                         "shared FMI 2.0 boilerplate in fmus/common, which has no FMI 3.0 "
-                         "counterpart yet; export with fmi_version=2")
-    if fmi_version != 2:
-        raise InputDataError(f"fmi_version must be 2 (or 3, not yet available), got "
+    if fmi_version not in FMI_VERSIONS:
+        raise InputDataError(f"fmi_version must be one of {list(FMI_VERSIONS)}, got "
                              f"{fmi_version!r}")
     if me_delay not in ME_DELAY_MODES:
         raise InputDataError(f"me_delay must be one of {list(ME_DELAY_MODES)}, got "
@@ -646,19 +625,16 @@ def export_fmu(model_ds: xr.Dataset, path, *, fmi_version: int = 2,
 
     spec = export_spec(model_ds, model_name)
     identifier = c_identifier(spec.name)
-    history = int(history_samples or _default_history(spec, step_size))
-    if history < 2:
-        raise InputDataError(f"history_samples must be at least 2, got {history_samples!r}")
     # the buffer needs no extra states: pade_order only shapes the "pade" variant
     n_pade = int(pade_order) if me_delay == "pade" else 0
     variables, units = fmu_variables(spec, n_pade)
-    source_files = ["fmi2_functions.c", "model.c"]
-    with progress.stage(f"export {spec.name} -> {path.name}"), \
+    source_files = [*boilerplate_sources(fmi_version), "model.c"]
+    with progress.stage(f"export {spec.name} (FMI {fmi_version}) -> {path.name}"), \
             tempfile.TemporaryDirectory(prefix="sysid-export-") as tmp:
         work = Path(tmp)
         src = work / "sources"
         src.mkdir()
-        _write_sources(src, spec, variables, n_pade, history, me_delay)
+        _write_sources(src, spec, variables, n_pade, me_delay, fmi_version)
         digest = hashlib.sha256()
         for f in sorted(src.iterdir()):
             digest.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
@@ -667,25 +643,25 @@ def export_fmu(model_ds: xr.Dataset, path, *, fmi_version: int = 2,
         fmu = describe(spec, variables, units, guid, identifier, step_size, source_files,
                        me_delay)
         (src / "model_variables.h").write_text(variables_header(fmu))
-        (src / "buildDescription.xml").write_text(
-            generate_build_description(identifier, source_files))
-        description = fmi2_model_description(fmu)
-        library = compile_library(src, identifier, work)
-        package_fmu(path, description, library, identifier, src)
+        if fmi_version == 3:
+            (src / "buildDescription.xml").write_text(build_description(fmu))
+        description = model_description(fmu, fmi_version)
+        library = compile_library(src, identifier, work, source_files)
+        package_fmu(path, description, library, identifier, src, fmi_version=fmi_version)
     return path
 
 
-def _write_sources(src: Path, spec: ExportSpec, variables, pade_order: int,
-                   history: int, me_delay: str) -> None:
+def _write_sources(src: Path, spec: ExportSpec, variables, pade_order: int, me_delay: str,
+                   fmi_version: int) -> None:
     """Copy the template, the shared boilerplate and the FMI headers; write the tables."""
     root = fmu_sources_dir()
-    for folder, names in ((root / "common", COMMON_FILES), (root / "linear", TEMPLATE_FILES)):
+    common = (*boilerplate_sources(fmi_version), *COMMON_HEADERS)
+    for folder, names in ((root / "common", common), (root / "linear", TEMPLATE_FILES)):
         for name in names:
             if not (folder / name).is_file():
                 raise FMUError(f"FMU source file {folder / name} is missing")
             shutil.copy2(folder / name, src / name)
-    for name in FMI_HEADERS:
+    for name in FMI_HEADERS[fmi_version]:
         shutil.copy2(fmi_header_dir() / name, src / name)
-    (src / "linear_dims.h").write_text(generate_dims(spec, variables, pade_order, history,
-                                                     me_delay))
+    (src / "linear_dims.h").write_text(generate_dims(spec, variables, pade_order, me_delay))
     (src / "linear_tables.h").write_text(generate_tables(spec))

@@ -22,7 +22,7 @@ from xml.etree import ElementTree
 
 import numpy as np
 
-from sysid.core.paths import cache_dir
+from sysid.core.paths import cache_dir, prune_cache, touch
 from sysid.core.errors import FMUError, InputDataError
 
 # fmpy is imported inside the functions that load or run an FMU: it loads native helper
@@ -139,7 +139,8 @@ def _file_digest(path: Path) -> str:
 MAX_ARCHIVE_BYTES = 1 << 30
 #: Largest modelDescription.xml read into memory, bytes.
 MAX_DESCRIPTION_BYTES = 64 << 20
-#: FMI versions load_fmu runs (FMI 2.0 model exchange + co-simulation).
+#: FMI versions load_fmu runs (FMI 2.0 model exchange + co-simulation); inspect_archive
+#: also checks FMI 3.0 archives when asked (the exported-FMU checks run those through fmpy).
 SUPPORTED_FMI_VERSIONS = ("2.0",)
 #: Leading bytes of a shared library, by extension (ELF, Mach-O thin/fat, PE).
 _LIBRARY_MAGIC = {
@@ -171,7 +172,8 @@ def _unsafe_member(info: zipfile.ZipInfo) -> str | None:
 
 
 def inspect_archive(path: str | os.PathLike, *, interfaces=("coSimulation", "modelExchange"),
-                    check_binary: bool = True) -> dict:
+                    check_binary: bool = True,
+                    fmi_versions: tuple[str, ...] = SUPPORTED_FMI_VERSIONS) -> dict:
     """Check an FMU archive without extracting it; raise FMUError on anything hostile.
 
     Refused, each with a one-line :class:`~sysid.core.errors.FMUError` naming the archive and the
@@ -186,7 +188,7 @@ def inspect_archive(path: str | os.PathLike, *, interfaces=("coSimulation", "mod
     Returns ``{"fmi_version", "guid", "model_name", "identifiers": {interface: identifier},
     "members": [names]}``.
     """
-    from fmpy import platform, sharedLibraryExtension  # deferred: see the module imports
+    from fmpy import platform, platform_tuple, sharedLibraryExtension  # deferred: see above
 
     path = Path(path)
     where = f"FMU {path}"
@@ -194,7 +196,8 @@ def inspect_archive(path: str | os.PathLike, *, interfaces=("coSimulation", "mod
         raise FMUError(f"FMU file {path} does not exist")
     try:
         zf = zipfile.ZipFile(path)
-    except (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, ValueError) as exc:
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, ValueError, EOFError,
+            NotImplementedError) as exc:  # NotImplementedError: a corrupted version field
         raise FMUError(f"{where} is not a valid FMU: not a readable zip archive "
                        f"({type(exc).__name__}: {exc})") from None
     with zf:
@@ -238,19 +241,23 @@ def inspect_archive(path: str | os.PathLike, *, interfaces=("coSimulation", "mod
             raise FMUError(f"{where} is not a valid FMU: modelDescription.xml has root element "
                            f"<{root.tag}>, expected <fmiModelDescription>")
         version = root.get("fmiVersion", "")
-        if version not in SUPPORTED_FMI_VERSIONS:
+        if version not in fmi_versions:
             raise FMUError(f"{where}: FMI version {version or '(missing)'!r} is not supported; "
-                           f"expected an FMI {' or '.join(SUPPORTED_FMI_VERSIONS)} FMU")
-        guid = root.get("guid", "")
+                           f"expected an FMI {' or '.join(fmi_versions)} FMU")
+        # FMI 3.0 calls the GUID instantiationToken and names binary folders by tuple
+        guid = root.get("guid" if version == "2.0" else "instantiationToken", "")
+        if version != "2.0":
+            platform = platform_tuple
         if not guid.strip():
-            raise FMUError(f"{where} is not a valid FMU: modelDescription.xml has no guid")
+            raise FMUError(f"{where} is not a valid FMU: modelDescription.xml has no "
+                           f"{'guid' if version == '2.0' else 'instantiationToken'}")
         identifiers = {}
         for kind in interfaces:
             tag = kind[0].upper() + kind[1:]
             element = root.find(tag)
             if element is None:
                 raise FMUError(f"{where}: modelDescription.xml has no <{tag}> element; "
-                               f"expected an FMI 2.0 FMU with {' and '.join(interfaces)}")
+                               f"expected an FMI {version} FMU with {' and '.join(interfaces)}")
             identifier = element.get("modelIdentifier", "")
             if not _C_IDENTIFIER.fullmatch(identifier):
                 raise FMUError(f"{where}: <{tag}> modelIdentifier {identifier!r} is not a C "
@@ -286,6 +293,7 @@ def _extract(path: Path) -> Path:
     """
     target = cache_dir() / "unzipped" / _file_digest(path)[:16]
     if (target / "modelDescription.xml").is_file():
+        touch(target)  # recently used: pruned last
         return target
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".extract-", dir=target.parent))
@@ -304,6 +312,7 @@ def _extract(path: Path) -> Path:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    prune_cache(target.parent, keep=target)  # capped: SYSID_CACHE_MAX_BYTES (core.paths)
     return target
 
 
