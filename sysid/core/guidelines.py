@@ -17,7 +17,7 @@ from __future__ import annotations
 
 __all__ = ["COHERENCE_MIN", "CROSS_COHERENCE_MAX", "J_AVE_MAX", "J_PAIR_MAX",
            "CR_MAX_PERCENT", "INSENSITIVITY_MAX_PERCENT", "COST_INCREASE_MAX", "J_RMS_MAX",
-           "TIC_MAX", "GUIDELINES", "REDUCTION_GUIDELINES"]
+           "TIC_MAX", "FIT_TIME_LIMIT_S", "GUIDELINES", "REDUCTION_GUIDELINES"]
 
 # -- frequency responses ---------------------------------------------------------------------
 #: Coherence gamma^2 above which a frequency point is accurate enough to fit and to judge
@@ -49,6 +49,13 @@ J_RMS_MAX = 2.0
 #: Theil's inequality coefficient ([J] TIC <= 0.25-0.3: good predictive capability; the
 #: lower end).
 TIC_MAX = 0.25
+
+# -- iterative fits ---------------------------------------------------------------------------
+#: Wall-clock bound (s) of one identification (fit, restarts and model reduction) in either
+#: domain; a fit that needs more is stopped with a message (not a guideline: a safety bound,
+#: some 20x the hover study's slowest fit on a busy 2-core machine). Each least-squares
+#: solve is also bounded in iterations (``max_nfev``, scipy's default 100 per parameter).
+FIT_TIME_LIMIT_S = 1800.0
 
 #: The guidelines by the names the HTML report shows them under.
 GUIDELINES = {

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import math
 import os
 import sys
 import tempfile
@@ -11,6 +12,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from sysid.core.errors import IdentificationError
 
 
 @contextlib.contextmanager
@@ -53,6 +56,35 @@ def _umask() -> int:
     mask = os.umask(0o077)
     os.umask(mask)
     return mask
+
+
+class Deadline:
+    """Wall-clock bound of an iterative computation (e.g. a least-squares fit).
+
+    ``wrap(fun)`` returns ``fun`` checking the bound before each call; past it,
+    :class:`~sysid.core.errors.IdentificationError` says what did not finish, after how long,
+    and how to allow more. ``seconds=None`` never expires.
+
+    >>> Deadline(None, "fit").wrap(abs)(-2)
+    2
+    """
+
+    def __init__(self, seconds: float | None, what: str, *, option: str = "time_limit"):
+        self.seconds, self.what, self.option = seconds, what, option
+        self.end = math.inf if seconds is None else time.monotonic() + float(seconds)
+
+    def check(self) -> None:
+        if time.monotonic() > self.end:
+            raise IdentificationError(
+                f"{self.what} did not finish within {self.seconds:g} s; the data may be "
+                f"ill-conditioned or hold non-physical values (pass {self.option}=... to "
+                "allow more time)")
+
+    def wrap(self, fun):
+        def bounded(*args, **kwargs):
+            self.check()
+            return fun(*args, **kwargs)
+        return bounded
 
 
 def rng(seed: int | None) -> np.random.Generator:
