@@ -25,5 +25,6 @@ def format_coherent_ranges(ds: xr.Dataset, *, coherence_min: float = COHERENCE_M
             g2 = ds[name].sel(output=o, input=i).values
             ok = np.nan_to_num(g2) >= coherence_min
             rng = f"{w[ok].min():8.3g} .. {w[ok].max():<8.3g}" if ok.any() else "none"
-            lines.append(f"{f'{o}/{i}':>16}  {rng:>24}  {np.nanmean(g2):24.2f}")
+            mean = np.nanmean(g2) if np.isfinite(g2).any() else np.nan  # no empty-slice warning
+            lines.append(f"{f'{o}/{i}':>16}  {rng:>24}  {mean:24.2f}")
     return "\n".join(lines)

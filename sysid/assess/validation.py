@@ -19,6 +19,7 @@ the others. Attributes of every Dataset: ``model``, and ``fmu`` (the exported fi
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -30,11 +31,12 @@ from sysid.data.campaign import CampaignData
 from sysid.fmi.export import export_fmu
 from sysid.truth import build_fmu
 from sysid.truth import trim as trim_truth
-from sysid.assess.envelopes import MUAD
+from sysid.assess.envelopes import MUAD, Envelope, load_envelope
 from sysid.assess.exported import (compare_with_truth, envelope_check, roundtrip_error,
                                    verification_inputs)
 
-__all__ = ["truth_reference", "validate_model", "validate_models", "format_validation"]
+__all__ = ["truth_reference", "validate_model", "validate_models", "format_validation",
+           "validation_envelopes", "validation_folder"]
 
 
 def truth_reference(data: CampaignData):
@@ -45,6 +47,44 @@ def truth_reference(data: CampaignData):
         return path, trim_truth(data.airspeed_kt, fmu=path)
     except SysidError as exc:
         return None, f"truth FMU not available ({exc})"
+
+
+def validation_envelopes(envelopes: Iterable) -> list[Envelope]:
+    """The envelopes to judge against: :class:`~sysid.assess.envelopes.Envelope` objects
+    as they are, TOML paths read by :func:`~sysid.assess.envelopes.load_envelope`. A missing
+    or malformed file raises :class:`~sysid.core.errors.InputDataError` naming it, before any
+    model is exported or any result written."""
+    out = []
+    for item in envelopes:
+        if isinstance(item, Envelope):
+            out.append(item)
+            continue
+        path = Path(item)
+        if not path.is_file():
+            raise InputDataError(f"envelope file {path} does not exist"
+                                 + (" (it is a directory)" if path.is_dir() else ""))
+        try:
+            out.append(load_envelope(path))
+        except UnicodeDecodeError as exc:
+            raise InputDataError(f"envelope file {path}: not UTF-8 text (byte {exc.start}); "
+                                 "expected a TOML file") from None
+    return out
+
+
+def validation_folder(fmu_dir: str | Path) -> Path:
+    """``fmu_dir`` as a folder the exported FMUs can be written to (created if missing);
+    :class:`~sysid.core.errors.InputDataError` when it names a file or cannot be created."""
+    folder = Path(fmu_dir)
+    if folder.exists() and not folder.is_dir():
+        raise InputDataError(f"FMU folder {folder} is a file; expected a folder to keep the "
+                             "exported FMUs in")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputDataError(f"FMU folder {folder} cannot be created ({exc})") from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise InputDataError(f"FMU folder {folder} is not writable")
+    return folder
 
 
 def validate_model(name: str, model: xr.Dataset, *, fmu_dir: str | Path, truth=None,
@@ -94,8 +134,13 @@ def validate_models(data: CampaignData, *, fmu_dir: str | Path, truth=None, trim
 
     ``truth``/``trim`` as from :func:`truth_reference` (None: no truth check); the envelope
     check runs when the campaign has ``/frequency_response``. A model whose validation
-    raises gives ``Dataset(attrs={"model": name, "error": "Type: message"})``.
+    raises gives ``Dataset(attrs={"model": name, "error": "Type: message"})``. Bad
+    arguments (a missing or malformed envelope file, ``fmu_dir`` naming a file) raise
+    :class:`~sysid.core.errors.InputDataError` before anything is exported, so a caller
+    never stores their failure in place of earlier results.
     """
+    envelopes = validation_envelopes(envelopes)
+    fmu_dir = validation_folder(fmu_dir)
     models = data.models()
     if not models:
         raise InputDataError(f"campaign {data.source} has no identified models (/models/<name>); "

@@ -6,12 +6,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import xarray as xr
-
 from sysid import __version__
 from sysid.data.campaign import list_maneuvers
 from sysid.data.importers import read_time_history, write_csv
-from sysid.data.netcdf import read_campaign, write_campaign
+from sysid.data.netcdf import add_maneuvers, read_campaign
 from sysid.core.errors import InputDataError
 
 
@@ -53,15 +51,13 @@ def _import(args: argparse.Namespace) -> int:
         if name in datasets:
             raise InputDataError(f"{file}: manoeuvre name {name!r} is used by two input files")
         datasets[name] = ds
-    tree = read_campaign(out) if out.exists() else xr.DataTree()
-    nodes = {node.path: node.to_dataset(inherit=False) for node in tree.subtree}
-    root = nodes.get("/", xr.Dataset())
-    root.attrs.setdefault("campaign", out.stem)
-    root.attrs.setdefault("sysid_version", __version__)
-    nodes["/"] = root
-    for name, ds in datasets.items():
-        nodes[f"/maneuvers/{name}"] = ds
-    write_campaign(xr.DataTree.from_dict(nodes), out)
+    if out.is_dir():
+        raise InputDataError(f"-o {out} is a directory; expected a campaign file name "
+                             "(e.g. -o campaign.nc)")
+    # One locked read-modify-write: imports and other stages writing the same campaign at
+    # the same time keep each other's groups.
+    add_maneuvers(out, datasets, root_attrs={"campaign": out.stem,
+                                             "sysid_version": __version__})
     if not args.quiet:
         print(f"{out}: imported {len(datasets)} manoeuvre(s): {', '.join(datasets)}")
     return 0

@@ -134,6 +134,37 @@ CHANNELS: dict[str, Channel] = {
 }
 
 
+#: Values no rotorcraft channel can take, in analysis units: ``channel -> (lowest, highest)``.
+#: Not flight-envelope limits but bounds of the physically possible, so that a corrupted
+#: sample (e.g. 1e300 from a broken logger) is refused where it enters instead of
+#: derailing a fit: control travel one full travel beyond either stop; body velocities
+#: about 590 kt; angular rates ten revolutions per second; bank and pitch one turn either
+#: way (unwrapped records); heading 100 turns (unwrapped yaw of a long record);
+#: accelerations 100 g (G0 = 32.17 ft/s^2).
+PHYSICAL_RANGE: dict[str, tuple[float, float]] = {
+    **{c: (-100.0, 200.0) for c in ("lon", "lat", "col", "ped")},
+    **{c: (-1000.0, 1000.0) for c in ("u", "v", "w")},
+    **{c: (-3600.0, 3600.0) for c in ("p", "q", "r")},
+    "phi": (-360.0, 360.0), "theta": (-360.0, 360.0), "psi": (-36000.0, 36000.0),
+    **{c: (-100 * G0 / FT, 100 * G0 / FT) for c in ("ax", "ay", "az")},
+}
+
+
+def physical_range(channel: str, unit: str | None = None) -> tuple[float, float] | None:
+    """:data:`PHYSICAL_RANGE` of ``channel`` in ``unit`` (default its analysis unit); None
+    for a channel outside the table or a unit that does not convert to the analysis unit."""
+    if channel not in PHYSICAL_RANGE:
+        return None
+    lo, hi = PHYSICAL_RANGE[channel]
+    if unit and unit != CHANNELS[channel].unit:
+        try:
+            k = conversion_factor(CHANNELS[channel].unit, unit)
+        except ValueError:
+            return None
+        lo, hi = sorted((lo * k, hi * k))
+    return lo, hi
+
+
 def channel_attrs(name: str) -> dict:
     """``units`` and ``long_name`` attributes for a channel in analysis units."""
     ch = CHANNELS[name]

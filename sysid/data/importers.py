@@ -26,7 +26,7 @@ import xarray as xr
 
 from sysid import __version__
 from sysid.core.errors import InputDataError
-from sysid.core.units import CHANNELS, CONTROLS, conversion_factor
+from sysid.core.units import CHANNELS, CONTROLS, PHYSICAL_RANGE, conversion_factor, physical_range
 from sysid.core.util import atomic_path
 from sysid.data.campaign import first_window_mean
 from sysid.data.netcdf import decode_attrs, decode_complex, encode_attrs, json_default
@@ -67,7 +67,9 @@ def _check_time_grid(t: np.ndarray, where: str, row_label=None, rtol: float = TI
         raise InputDataError(
             f"{where}: time is not strictly increasing at {label(i)}: "
             f"t = {float(t[i])!r} after {float(t[i - 1])!r}")
-    dt = (t[-1] - t[0]) / (t.size - 1)
+    # The typical step is the median one: a single gap must be reported where it is, not
+    # at the first sample (which a mean step stretched by the gap would make look off).
+    dt = float(np.median(steps))
     off = np.flatnonzero(np.abs(steps - dt) > rtol * dt)
     if off.size:
         i = off[0] + 1
@@ -75,7 +77,7 @@ def _check_time_grid(t: np.ndarray, where: str, row_label=None, rtol: float = TI
             f"{where}: time is not uniform at {label(i)}: step {float(steps[i - 1])!r} s, "
             f"expected {float(dt)!r} s (relative tolerance {rtol:g}); resample the record "
             "onto a uniform grid")
-    return float(dt)
+    return float((t[-1] - t[0]) / (t.size - 1))
 
 
 def validate_time_history(ds: xr.Dataset, required=(), name: str | None = None,
@@ -103,6 +105,9 @@ def validate_time_history(ds: xr.Dataset, required=(), name: str | None = None,
         if values.dtype.kind not in "biuf":
             raise InputDataError(f"{where}: channel {ch!r} has dtype {values.dtype}; "
                                  "expected numbers")
+        _check_range(values, ch, ds[ch].attrs.get("units"), where,
+                     lambda i: f"sample {i} (time {t[i]:g} s)"
+                     if ds[ch].dims[:1] == ("time",) else f"element {i}")
         if values.dtype.kind == "f":
             finite = np.isfinite(values)
             if not finite.all():
@@ -116,6 +121,33 @@ def validate_time_history(ds: xr.Dataset, required=(), name: str | None = None,
                     f"{where}: channel {ch!r} is not finite (NaN or inf) at {at}; "
                     "expected finite values")
     return dt
+
+
+def _check_range(values, channel: str, unit: str | None, where: str, label) -> None:
+    """InputDataError at the first value of ``channel`` outside
+    :data:`sysid.core.units.PHYSICAL_RANGE` (``unit``: the values' unit; a unit that does
+    not convert to the channel's is judged in the analysis unit). NaN is left to the finite
+    check; ``label(i)`` names the first offending sample (the leading axis)."""
+    if channel not in PHYSICAL_RANGE:
+        return
+    lo, hi = physical_range(channel, unit) or PHYSICAL_RANGE[channel]
+    values = np.asarray(values)
+    if values.dtype.kind not in "iuf" or values.size == 0:
+        return
+    with np.errstate(invalid="ignore"):
+        out = (values < lo) | (values > hi)
+    if values.ndim > 1:
+        out = out.reshape(values.shape[0], -1).any(axis=1)
+    bad = np.flatnonzero(out)
+    if bad.size:
+        i = int(bad[0])
+        value = np.asarray(values[i]).ravel()
+        value = value[(value < lo) | (value > hi)][0]
+        shown = unit or CHANNELS[channel].unit
+        raise InputDataError(
+            f"{where}, {label(i)}, channel {channel!r}: value {float(value):g} {shown} is "
+            f"outside the physically possible range {lo:g} .. {hi:g} {shown} "
+            "(sysid.core.units.PHYSICAL_RANGE); a corrupted sample or a wrong unit?")
 
 
 def _infer_kind_axis(name: str) -> tuple[str, str]:
@@ -146,6 +178,9 @@ def write_csv(ds: xr.Dataset, path: str | os.PathLike) -> None:
     :func:`read_time_history` gets the same floats back. The first line is a comment
     ``# sysid-attrs: {...}`` holding the dataset attributes as JSON.
     """
+    if Path(path).is_dir():
+        raise InputDataError(f"cannot write {path}: it is a directory; expected a CSV file "
+                             "name")
     validate_time_history(ds)
     names = [k for k, v in ds.data_vars.items() if v.dims == ("time",)
              and v.dtype.kind in "biuf"]
@@ -380,6 +415,7 @@ def read_time_history(path: str | os.PathLike, mapping: Mapping[str, str] | None
                     f"file {path}, {label(bad[0])}, column {col!r}: value "
                     f"{rows[bad[0], index[col]]!r} {file_unit} overflows when converted to "
                     f"{target}; expected a finite number")
+            _check_range(values, ch, target, f"file {path}, column {col!r}", label)
         else:
             attrs = {"units": file_unit or "1", "long_name": str(col)}
         if col != ch:

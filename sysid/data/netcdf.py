@@ -22,15 +22,28 @@ Attributes (of datasets and variables; :func:`encode_attrs`, :func:`decode_attrs
       "ndarray" | "json"}``), which :func:`decode_complex` uses to restore it exactly.
 
 Files are always written atomically (temporary file next to the target, then rename) and read
-fully into memory, so a campaign file can be replaced while its contents are in use.
+fully into memory, so a campaign file can be replaced while its contents are in use. A
+campaign path that is a symbolic link is written through to the link's target (the link
+stays a link). An interrupt (Ctrl-C, SIGINT) that arrives while a file is being written is
+held until the netCDF library has closed it, then raised as :class:`KeyboardInterrupt`: the
+temporary is removed, the campaign is left as it was and the lock is released (an interrupt
+inside the library's own file locks used to deadlock the process).
 :func:`update_campaign` and :func:`update_campaign_groups` replace some groups and keep the
 rest; :func:`group_attrs` and :func:`set_group_attrs` read and stamp one group's attributes
 without loading the data.
 
-Concurrent writers: an update is a read-modify-write of the whole file, serialised between
-the processes of one machine by :func:`campaign_lock` (``flock`` on the folder). It is not a
-guarantee across machines; :mod:`sysid.pipeline` therefore never lets two tasks write the
-same campaign file at once (see :mod:`sysid.pipeline.study`).
+Concurrent writers: every write (:func:`write_campaign`, the updates, :func:`add_maneuvers`
+used by ``sysid import``) is a read-modify-write serialised between the processes of one
+machine by :func:`campaign_lock` (``flock`` on the folder; re-entrant within a thread). It is
+not a guarantee across machines; :mod:`sysid.pipeline` therefore never lets two tasks write
+the same campaign file at once (see :mod:`sysid.pipeline.study`).
+
+Stale temporaries: a writer's temporary is ``.<NAME>.<pid>-<random>.nc`` next to the
+campaign ``NAME``. A writer that was killed (SIGKILL, power loss) leaves it behind; the next
+writer of that campaign, once it holds the lock, removes every temporary of the campaign
+whose writer process no longer exists on this machine, and every temporary without a pid
+(older sysid versions) last modified before it acquired the lock -- no writer that follows
+the lock can still be writing either (:func:`remove_stale_temporaries`).
 """
 
 from __future__ import annotations
@@ -38,7 +51,12 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import shutil
+import signal
+import tempfile
+import threading
+import time
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -46,7 +64,7 @@ import numpy as np
 import xarray as xr
 
 from sysid.core.errors import InputDataError
-from sysid.core.util import atomic_path
+from sysid.core.util import _new_file_mode
 
 __all__ = [
     "COMPLEX_DIM",
@@ -62,7 +80,10 @@ __all__ = [
     "group_attrs",
     "set_group_attrs",
     "append_maneuver",
+    "add_maneuvers",
     "campaign_lock",
+    "campaign_target",
+    "remove_stale_temporaries",
 ]
 
 #: Name of the trailing dimension holding real and imaginary parts of complex variables.
@@ -249,7 +270,7 @@ def write_campaign(tree: xr.DataTree, path: str | os.PathLike) -> None:
         tree = xr.DataTree(tree)
     encoded = _tree_from_nodes({p: encode_complex(ds) for p, ds in _nodes(tree).items()},
                                f"for {path}")
-    with atomic_path(path, suffix=".nc") as tmp:
+    with campaign_lock(path), _atomic_campaign(path) as tmp:
         encoded.to_netcdf(tmp, engine="netcdf4", mode="w")
 
 
@@ -260,6 +281,8 @@ def read_campaign(path: str | os.PathLike) -> xr.DataTree:
     decoding); complex, bool and typed attributes are rebuilt by :func:`decode_complex`.
     """
     path = Path(path)
+    if path.is_dir():
+        raise InputDataError(f"campaign file {path} is a directory; expected a netCDF file")
     if not path.is_file():
         raise InputDataError(f"campaign file {path} does not exist")
     try:
@@ -349,7 +372,7 @@ def set_group_attrs(path: str | os.PathLike, group: str, attrs: Mapping) -> None
         if group_attrs(path, target) is None:
             raise InputDataError(f"campaign {path} has no group {target!r} to set "
                                  f"attributes {sorted(attrs)} on")
-        with atomic_path(path, suffix=".nc") as tmp:
+        with _atomic_campaign(path) as tmp:
             shutil.copyfile(path, tmp)
             with netCDF4.Dataset(tmp, "a") as nc:
                 node = _nc_group(nc, target)
@@ -422,35 +445,160 @@ def _append_new_groups(path, new: Mapping[str, xr.Dataset]) -> bool:
     # Encode (and check) everything before the file is touched.
     encoded = {g: encode_complex(ds) for g, ds in new.items()}
     _tree_from_nodes(encoded, f"in {path} (groups {sorted(new)})")
-    with atomic_path(path, suffix=".nc") as tmp:
+    with _atomic_campaign(path) as tmp:
         shutil.copyfile(path, tmp)
         for group, ds in encoded.items():
             ds.to_netcdf(tmp, mode="a", group=group, engine="netcdf4")
     return True
 
 
+_HELD = threading.local()  # folders whose campaign lock this thread holds: {folder: depth}
+
+
 @contextlib.contextmanager
 def campaign_lock(path: str | os.PathLike):
     """Exclusive advisory lock for a read-modify-write of the campaign at ``path``.
 
-    ``flock`` on the campaign's folder, not on a lock file, so nothing is left on disk; it
-    holds across the processes of one machine (Dask workers of a LocalCluster). Where
-    ``fcntl`` does not exist (Windows) the lock is a no-op and concurrent updates of one
-    file are not safe.
+    ``flock`` on the folder of the campaign's target (a symbolic link is followed), not on a
+    lock file, so nothing is left on disk; it holds across the processes of one machine (Dask
+    workers of a LocalCluster) and between threads. It is re-entrant within a thread (an
+    update holds it around the write it calls). On acquiring it, stale temporaries of the
+    campaign are removed (:func:`remove_stale_temporaries`). Where ``fcntl`` does not exist
+    (Windows) the lock is a no-op and concurrent updates of one file are not safe.
     """
     try:
         import fcntl
     except ImportError:  # pragma: no cover - not POSIX
         yield
         return
-    folder = Path(path).resolve().parent
+    target = campaign_target(path)
+    folder = target.parent
+    held = getattr(_HELD, "folders", None)
+    if held is None:
+        held = _HELD.folders = {}
+    key = str(folder)
+    if held.get(key):
+        held[key] += 1
+        try:
+            yield
+        finally:
+            held[key] -= 1
+        return
     folder.mkdir(parents=True, exist_ok=True)
     descriptor = os.open(folder, os.O_RDONLY)
     try:
         fcntl.flock(descriptor, fcntl.LOCK_EX)
+        held[key] = 1
+        remove_stale_temporaries(target, acquired=time.time())
         yield
     finally:
+        held.pop(key, None)
         os.close(descriptor)  # closing the descriptor releases the lock
+
+
+def campaign_target(path: str | os.PathLike) -> Path:
+    """The file a write of the campaign ``path`` replaces: ``path`` itself, or the final
+    target of a symbolic link (which may not exist yet), absolute."""
+    path = Path(path)
+    return Path(os.path.realpath(path)) if path.is_symlink() else path.absolute()
+
+
+#: ``.<NAME>.<pid>-<random>.nc``: the pid of the writer, for :func:`remove_stale_temporaries`.
+_TEMP_PID = re.compile(r"(\d+)-[^.]*\.nc")
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, ValueError):
+        return True  # another user's process (or not a pid we can ask about): keep
+    return True
+
+
+def remove_stale_temporaries(path: str | os.PathLike, *, acquired: float) -> list[Path]:
+    """Remove the temporaries a killed writer left next to the campaign ``path``.
+
+    Call with :func:`campaign_lock` held (``acquired``: when it was acquired, epoch s). A
+    temporary ``.<NAME>.<pid>-<random>.nc`` goes when process ``pid`` no longer exists; one
+    without a pid (``.<NAME>.<random>.nc``) when it was last modified before ``acquired``.
+    Returns the files removed.
+    """
+    target = campaign_target(path)
+    prefix = f".{target.name}."
+    removed = []
+    try:
+        candidates = [p for p in target.parent.iterdir()
+                      if p.name.startswith(prefix) and p.name.endswith(".nc")]
+    except OSError:
+        return removed
+    for tmp in candidates:
+        rest = tmp.name[len(prefix):]
+        match = _TEMP_PID.fullmatch(rest)
+        try:
+            if match:
+                stale = not _pid_alive(int(match.group(1)))
+            else:
+                stale = tmp.stat().st_mtime < acquired
+            if stale and tmp.is_file() and not tmp.is_symlink():
+                tmp.unlink()
+                removed.append(tmp)
+        except OSError:
+            continue  # vanished or not ours to remove
+    return removed
+
+
+@contextlib.contextmanager
+def _interrupts_held():
+    """Hold SIGINT while the netCDF library writes; yields the list of signals received.
+
+    An interrupt raised inside netCDF4/HDF5 or xarray's file-manager lock can deadlock the
+    process or be swallowed by a destructor; held, it is raised by the caller at a safe
+    point. Only the main thread receives signals, so elsewhere this does nothing.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield []
+        return
+    received: list[int] = []
+    try:
+        previous = signal.signal(signal.SIGINT, lambda signum, frame: received.append(signum))
+    except ValueError:  # pragma: no cover - not the main interpreter
+        yield received
+        return
+    try:
+        yield received
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
+def _atomic_campaign(path: str | os.PathLike):
+    """Yield a temporary path next to the campaign's target; rename it onto the target on
+    success. Interrupts are held while the block runs: one that arrived is raised as
+    :class:`KeyboardInterrupt` before the rename (the temporary is removed and the campaign
+    is unchanged). A symbolic link ``path`` keeps pointing at the updated target."""
+    target = campaign_target(path)
+    if target.is_dir():
+        raise InputDataError(f"campaign file {path} is a directory; expected a file name "
+                             "(e.g. campaign.nc)")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with _interrupts_held() as received:
+        fd, name = tempfile.mkstemp(prefix=f".{target.name}.{os.getpid()}-", suffix=".nc",
+                                    dir=target.parent)
+        os.close(fd)
+        tmp = Path(name)
+        try:
+            yield tmp
+            if received:
+                raise KeyboardInterrupt
+            os.chmod(tmp, _new_file_mode(target))
+            os.replace(tmp, target)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+    if received:  # arrived during the rename: the write is complete, stop now
+        raise KeyboardInterrupt
 
 
 def with_groups(tree: xr.DataTree, groups: Mapping[str, xr.Dataset | xr.DataTree], *,
@@ -473,6 +621,29 @@ def _rewrite_groups(path, groups: Mapping[str, xr.Dataset | xr.DataTree]) -> Non
     """Reread the campaign at ``path`` (if any), replace ``groups`` and rewrite it all."""
     tree = read_campaign(path) if Path(path).exists() else xr.DataTree()
     write_campaign(with_groups(tree, groups, where=f"in {path}"), path)
+
+
+def add_maneuvers(path: str | os.PathLike, datasets: Mapping[str, xr.Dataset], *,
+                  root_attrs: Mapping | None = None) -> None:
+    """Add (or replace) manoeuvres ``{name: time history}`` in the campaign at ``path``.
+
+    One locked read-modify-write (:func:`campaign_lock`): manoeuvres that other processes add
+    at the same time are kept. ``root_attrs`` are set on the root where it lacks them
+    (e.g. ``campaign``, ``sysid_version``); a missing file starts a campaign.
+    """
+    for name in datasets:
+        if not name or "/" in name:
+            raise InputDataError(f"manoeuvre name {name!r} must be non-empty and contain "
+                                 "no '/'")
+    with campaign_lock(path):
+        tree = read_campaign(path) if Path(path).exists() else xr.DataTree()
+        root = tree.to_dataset(inherit=False)
+        for key, value in (root_attrs or {}).items():
+            root.attrs.setdefault(key, value)
+        nodes = _nodes(tree)
+        nodes["/"] = root
+        nodes.update({f"/maneuvers/{n}": ds for n, ds in datasets.items()})
+        write_campaign(_tree_from_nodes(nodes, f"in {path}"), path)
 
 
 def _update_campaign(path, group: str, dataset) -> None:

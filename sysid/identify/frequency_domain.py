@@ -299,9 +299,14 @@ def select_fit_data(fr: xr.Dataset, pairs=None, *, coherence_min: float = COHERE
         used_ranges[name] = (float(w[0]), float(w[-1]))
         kept.append(pair)
     if not kept:
+        collinear = (fr.attrs.get("collinear_note") or (
+            "inputs are collinear at some frequencies (the response's 'collinear' flag)"
+            if "collinear" in fr and bool(fr["collinear"].any()) else ""))
         raise IdentificationError(
             "no input/output pair has a coherent frequency range (coherence >= "
-            f"{coherence_min}): " + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
+            f"{coherence_min})" + (f"; {collinear}: their responses cannot be separated"
+                                   if collinear else "") + ": "
+            + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
     cat = {k: np.concatenate(v) for k, v in cols.items()}
     weight = (20.0 / n_points) * coherence_weight(cat["g2"])
     return FitData(tuple(kept), skipped, cat["pair"].astype(int), cat["omega"], cat["mag"],

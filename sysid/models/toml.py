@@ -103,13 +103,21 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
         File name for error messages.
     """
     trim = dict(trim or {})
-    try:
-        states = [str(s) for s in spec["states"]]
-        inputs = [str(s) for s in spec["inputs"]]
-    except KeyError as exc:
-        raise InputDataError(f"structure {source}: missing required key {exc.args[0]!r}") from None
-    outputs = [str(s) for s in spec.get("outputs", states)]
-    name = str(spec.get("name", Path(source).stem))
+    if not isinstance(spec, Mapping):
+        raise InputDataError(f"structure {source}: expected a table of keys, got "
+                             f"{type(spec).__name__}")
+    for key in ("states", "inputs"):
+        if key not in spec:
+            raise InputDataError(f"structure {source}: missing required key {key!r}")
+    states = _names(spec["states"], f"structure {source}: states")
+    inputs = _names(spec["inputs"], f"structure {source}: inputs")
+    outputs = _names(spec.get("outputs", states), f"structure {source}: outputs")
+    name = _text(spec.get("name", Path(source).stem), f"structure {source}: name")
+    _text(spec.get("description", ""), f"structure {source}: description")
+    for table in ("kinematics", "trim", "A", "B", "C", "D", "delays"):
+        if table in spec and not isinstance(spec[table], Mapping):
+            raise InputDataError(f"structure {source}: [{table}] must be a table, got "
+                                 f"{spec[table]!r}")
     known_tables = {"name", "description", "states", "inputs", "outputs", "kinematics", "trim",
                     "frequency_range",
                     "A", "B", "C", "D", "delays"}
@@ -125,6 +133,9 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
         for key, channel in (("theta0", "theta"), ("phi0", "phi"), ("u0", "u"), ("v0", "v"),
                              ("w0", "w")):
             val = kin.get(key, "trim")
+            if val != "trim":
+                val = _number(val, f"structure {source}: [kinematics] {key}",
+                              "a number or \"trim\"")
             if val == "trim":
                 if channel in trim:
                     val = trim[channel]
@@ -155,38 +166,80 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
             raise InputDataError(f"structure {source}: frequency_range needs 0 <= omega_min < "
                                  f"omega_max, got {band!r}")
         attrs.update(fit_omega_min=lo, fit_omega_max=hi)
-    trim_all = dict(spec.get("trim", {}))
+    trim_all = {str(k): _number(v, f"structure {source}: [trim] {k}")
+                for k, v in dict(spec.get("trim", {})).items()}
     trim_all.update(trim)
     params: list[Parameter] = []
     for matrix in "ABCD":
         for key, item in dict(spec.get(matrix, {})).items():
             nm, row, col = _parse_entry_key(key, matrix, states)
             item = {"value": item} if not isinstance(item, Mapping) else dict(item)
-            _check_fields(item, {"value", "free", "lower", "upper", "name", "keep"},
-                          f"structure {source}: [{matrix}] {key}")
-            params.append(Parameter(str(item.get("name", nm)), matrix, row, col,
-                                    float(item.get("value", 0.0)), bool(item.get("free", True)),
-                                    float(item.get("lower", -math.inf)),
-                                    float(item.get("upper", math.inf)),
-                                    bool(item.get("keep", False))))
+            where = f"structure {source}: [{matrix}] {key}"
+            _check_fields(item, {"value", "free", "lower", "upper", "name", "keep"}, where)
+            params.append(Parameter(_text(item.get("name", nm), f"{where}: name"), matrix,
+                                    row, col,
+                                    _number(item.get("value", 0.0), f"{where}: value"),
+                                    _flag(item.get("free", True), f"{where}: free"),
+                                    _number(item.get("lower", -math.inf), f"{where}: lower"),
+                                    _number(item.get("upper", math.inf), f"{where}: upper"),
+                                    _flag(item.get("keep", False), f"{where}: keep")))
     for nm, item in dict(spec.get("delays", {})).items():
         item = dict(item) if isinstance(item, Mapping) else {"entry": item}
         if "entry" not in item:
             raise InputDataError(f"structure {source}: [delays] {nm}: missing 'entry' "
                                  f"('row,input' or 'input')")
-        _check_fields(item, {"entry", "value", "free", "lower", "upper", "keep"},
-                      f"structure {source}: [delays] {nm}")
-        row, col = parse_delay_entry(item["entry"], nm)
-        params.append(Parameter(str(nm), "delay", row, col, float(item.get("value", 0.05)),
-                                bool(item.get("free", True)),
-                                float(item.get("lower", DELAY_BOUNDS[0])),
-                                float(item.get("upper", DELAY_BOUNDS[1])),
-                                bool(item.get("keep", False))))
-    return LinearStructure(states=states, inputs=inputs, outputs=outputs, A0=A0,
-                           parameters=params,
-                           trim_input={k: v for k, v in trim_all.items() if k in inputs},
-                           trim_output={k: v for k, v in trim_all.items() if k in outputs},
-                           name=name, description=str(spec.get("description", "")), attrs=attrs)
+        where = f"structure {source}: [delays] {nm}"
+        _check_fields(item, {"entry", "value", "free", "lower", "upper", "keep"}, where)
+        try:
+            row, col = parse_delay_entry(_text(item["entry"], f"{where}: entry"), nm)
+        except InputDataError as exc:
+            raise InputDataError(f"structure {source}: {exc}") from None
+        params.append(Parameter(str(nm), "delay", row, col,
+                                _number(item.get("value", 0.05), f"{where}: value"),
+                                _flag(item.get("free", True), f"{where}: free"),
+                                _number(item.get("lower", DELAY_BOUNDS[0]), f"{where}: lower"),
+                                _number(item.get("upper", DELAY_BOUNDS[1]), f"{where}: upper"),
+                                _flag(item.get("keep", False), f"{where}: keep")))
+    try:
+        return LinearStructure(states=states, inputs=inputs, outputs=outputs, A0=A0,
+                               parameters=params,
+                               trim_input={k: v for k, v in trim_all.items() if k in inputs},
+                               trim_output={k: v for k, v in trim_all.items()
+                                            if k in outputs},
+                               name=name, description=str(spec.get("description", "")),
+                               attrs=attrs)
+    except (InputDataError, ValueError) as exc:
+        # e.g. a parameter on a row or column the structure does not have
+        raise InputDataError(f"structure {source}: {exc}") from None
+
+
+def _number(value, where: str, expected: str = "a number") -> float:
+    """``value`` as float when it is a TOML integer or float (not a boolean or a string)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InputDataError(f"{where} = {value!r}: expected {expected}")
+    return float(value)
+
+
+def _flag(value, where: str) -> bool:
+    """``value`` when it is a TOML boolean: ``free = "false"`` would otherwise mean free."""
+    if not isinstance(value, bool):
+        raise InputDataError(f"{where} = {value!r}: expected true or false (a TOML boolean, "
+                             "without quotes)")
+    return value
+
+
+def _text(value, where: str) -> str:
+    if not isinstance(value, str):
+        raise InputDataError(f"{where} = {value!r}: expected a string")
+    return value
+
+
+def _names(value, where: str) -> list[str]:
+    if (not isinstance(value, list) or not value
+            or not all(isinstance(v, str) and v for v in value)):
+        raise InputDataError(f"{where} = {value!r}: expected a non-empty list of names "
+                             '(e.g. ["u", "q"])')
+    return list(value)
 
 
 def _check_fields(item: Mapping, allowed: set[str], where: str) -> None:
@@ -221,7 +274,12 @@ def load_structure(source: str | Path, *, trim: Mapping[str, float] | None = Non
     """
     path = structure_path(source)
     try:
-        spec = tomllib.loads(path.read_text())
+        spec = tomllib.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise InputDataError(f"structure file {path}: not UTF-8 text (byte {exc.start}); "
+                             "TOML files are UTF-8") from None
     except tomllib.TOMLDecodeError as exc:
         raise InputDataError(f"structure file {path}: invalid TOML: {exc}") from None
+    except OSError as exc:
+        raise InputDataError(f"structure file {path}: cannot be read ({exc})") from None
     return structure_from_dict(spec, trim=trim, source=str(path))

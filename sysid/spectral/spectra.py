@@ -169,6 +169,9 @@ def perturbations(records, channels: Sequence[str],
             if da.dims != ("time",):
                 raise InputDataError(f"record {name!r}, channel {c!r}: expected dims ('time',), "
                                      f"got {da.dims}")
+            if da.dtype.kind not in "biuf":
+                raise InputDataError(f"record {name!r}, channel {c!r} holds {da.dtype} values "
+                                     "(text?); expected numbers")
             x = np.asarray(da.values, dtype=float)
             bad = ~np.isfinite(x)
             if bad.any():
