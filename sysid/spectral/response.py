@@ -229,6 +229,13 @@ def frequency_response(records, inputs: Sequence[str], outputs: Sequence[str], *
             per_window = siso
     with prog.stage("frequency response: composite windowing"):
         result, weight = _assemble(per_window, siso, conditioned, coherence_weight)
+    collinear_note = _collinear_note(result, per_window, collinear_threshold)
+    if collinear_note and bool(result["collinear"].all()):
+        raise InputDataError(f"{collinear_note}: no conditioned response exists at any "
+                             "frequency; excite the inputs independently or leave one of "
+                             "them out of the inputs")
+    if collinear_note:
+        prog.message(f"[sysid] warning: {collinear_note}; H is NaN there")
     attrs = {
         "overlap": overlap, "C_eps": C_eps, "windows": np.asarray(windows),
         "records": [s.attrs["name"] for s in signals], "inputs": inputs, "outputs": outputs,
@@ -238,6 +245,7 @@ def frequency_response(records, inputs: Sequence[str], outputs: Sequence[str], *
         "sample_interval": dt, "transient_states": list(transient),
     }
     result.attrs = dict(attrs)
+    result.attrs["collinear_note"] = collinear_note
     _units(result, inputs, outputs)
     if not keep_windows:
         return result
@@ -285,6 +293,31 @@ def _assemble(per_window: xr.Dataset, siso: xr.Dataset, conditioned: bool,
                                      units="1")
     out["collinear"].attrs.update(long_name="no usable window: inputs nearly collinear")
     return out, main["weight"]
+
+
+def _collinear_note(result: xr.Dataset, per_window: xr.Dataset, threshold: float) -> str:
+    """Which inputs are collinear and where (``""`` when no frequency is flagged): those
+    that make up the near-null direction of the normalised input spectral matrix (weight of
+    at least 0.2 in its last singular vector, on average over the flagged frequencies and
+    the windows), e.g. ``lon, lat`` for ``lat = 2 lon``."""
+    flag = np.asarray(result["collinear"].values, bool)
+    if not flag.any() or "Gxx" not in per_window:
+        return ""
+    gxx = per_window["Gxx"].isel(frequency=np.flatnonzero(flag)).transpose(
+        ..., "input", "input_j").values
+    d = np.sqrt(np.abs(np.real(np.diagonal(gxx, axis1=-2, axis2=-1))))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        gn = gxx / (d[..., :, None] * d[..., None, :])
+    gn = gn[np.all(np.isfinite(gn), axis=(-2, -1))]
+    inputs = [str(i) for i in per_window["input"].values]
+    involved = inputs
+    if gn.size:
+        null = np.abs(np.linalg.svd(gn)[2][..., -1, :]).mean(axis=0)
+        involved = [i for i, v in zip(inputs, null) if v >= 0.2] or inputs
+    w = np.asarray(result["frequency"].values)[flag]
+    return (f"inputs {', '.join(involved)} are collinear (an input's multiple coherence on "
+            f"the others >= {threshold:g}) at {flag.sum()} of {flag.size} frequencies, "
+            f"{w.min():.3g} .. {w.max():.3g} rad/s")
 
 
 def _units(ds: xr.Dataset, inputs, outputs) -> None:
