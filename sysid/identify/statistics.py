@@ -423,8 +423,8 @@ def coloured_residual_covariance(*, sensitivities: Sequence[np.ndarray],
     sum is truncated at ``L = LAG_WINDOW_FACTOR x`` :func:`correlation_lag` with Bartlett
     weights, which keep ``B`` positive semi-definite (the Newey-West form). White residuals
     give ``L = 0`` and ``B = M``: the white-noise bound. The inner sum over ``j`` is a
-    convolution, done per record by FFT (``O(N log N p n)``), then one ``(N p) x n``
-    matrix product.
+    convolution, a product per frequency after an FFT of each record (``O(N log N p n)``),
+    and the outer sum one ``(F p) x n`` matrix product by Parseval's theorem.
 
     Parameters
     ----------
@@ -481,9 +481,21 @@ def coloured_residual_covariance(*, sensitivities: Sequence[np.ndarray],
         kernel[:window + 1] = K_pos
         if window:
             kernel[nfft - window:] = np.transpose(K_pos[1:], (0, 2, 1))[::-1]
-        T = scipy.fft.irfft(scipy.fft.rfft(kernel, axis=0) @ scipy.fft.rfft(S, n=nfft, axis=0),
-                            n=nfft, axis=0)[:N]  # T(i) = sum_k K(k) S(i - k)
-        B += S.reshape(N * p, n).T @ T.reshape(N * p, n)
+        Kf = scipy.fft.rfft(kernel, axis=0)  # (F, p, p)
+        Sf = scipy.fft.rfft(S, n=nfft, axis=0)  # (F, p, n)
+        # T(i) = sum_k K(k) S(i - k) is a product per frequency (p small: a sum over p
+        # broadcast products is faster than F tiny matrix products) ...
+        Tf = Kf[:, :, 0, None] * Sf[:, None, 0, :]
+        for b in range(1, p):
+            Tf += Kf[:, :, b, None] * Sf[:, None, b, :]
+        # ... and sum_i S(i)^T T(i) is, by Parseval, one (F p) x n complex matrix product
+        # (one-sided spectrum: the bins between 0 and Nyquist count twice).
+        weight = np.full(len(Sf), 2.0)
+        weight[0] = 1.0
+        if nfft % 2 == 0:
+            weight[-1] = 1.0
+        Sw = np.conj(Sf) * (weight / nfft)[:, None, None]
+        B += np.real(Sw.reshape(-1, n).T @ Tf.reshape(-1, n))
     B = 0.5 * (B + B.T)
     ok = np.isfinite(np.diag(Minv))
     cov = np.full((n, n), np.inf)
