@@ -142,6 +142,9 @@ def test_batch_on_local_cluster_survives_a_failing_condition(tmp_path, truth_fmu
         good = conditions([0, 20, 40, 60, 80, 100])
     else:
         good = [Condition(100.0, quick=True)]
+    # Two hover seeds: the reduced form of the Monte Carlo calibration of the bounds (the full
+    # 20-seed form is tests/test_calibration.py).
+    good += [Condition(0.0, seed=seed, quick=True) for seed in (1, 2)]
     bad = Condition(400.0, quick=True)  # outside the flight envelope: trim refuses it
     # And a condition whose simulation "diverges" (injected inside its task).
     diverging = Condition(20.0, quick=True)
@@ -178,6 +181,9 @@ def test_batch_on_local_cluster_survives_a_failing_condition(tmp_path, truth_fmu
     assert str(on_disk.error.sel(condition=broken.name).values) == error
     on_disk.close()
     assert (tmp_path / "batch_derivatives.png").stat().st_size > 10_000
+    _check_calibration(ds, [c.name for c in done if c.airspeed_kt == 0.0])
+    assert (tmp_path / "batch_calibration.png").stat().st_size > 10_000
+    assert "time_domain_corrected" in (tmp_path / "monte_carlo.txt").read_text()
     # Truth linearisation present for every completed condition; signs of the dominant
     # damping derivatives are physical at every speed (truth, and the time-domain estimate).
     for c in done:
@@ -194,6 +200,37 @@ def test_batch_on_local_cluster_survives_a_failing_condition(tmp_path, truth_fmu
                       inject_failure={diverging.name: "SimulationDiverged"})
     assert again.wall_time_s < result.wall_time_s / 2
     assert list(again.dataset.status.values) == list(ds.status.values)
+
+
+def _check_calibration(ds, hover):
+    """The calibration batch.nc stores is what its own per-seed values say: scatter =
+    np.std(ddof=1) of the stored estimates, bound = mean of the stored bounds, ratio finite
+    and within a wide sanity band (the goal band needs 20 seeds: tests/test_calibration.py);
+    the corrected time-domain bound is at least the white one (coloured residuals)."""
+    assert len(hover) >= 2
+    cal = ds.sel(calibration_kt=0.0)
+    models = {"frequency_domain": ("frequency_domain", "cramer_rao"),
+              "time_domain_white": ("time_domain", "cramer_rao"),
+              "time_domain_corrected": ("time_domain", "cramer_rao_corrected")}
+    for name in DOMINANT:
+        for bound, (model, variable) in models.items():
+            cell = cal.sel(dominant=name, bound=bound)
+            values = ds["value"].sel(condition=hover, model=model, parameter=name).values
+            bounds = ds[variable].sel(condition=hover, model=model, parameter=name).values
+            use = np.isfinite(values) & np.isfinite(bounds)
+            if use.sum() < 2:  # removed by the reduction in a seed: nothing to calibrate
+                assert int(cell["calibration_n_seeds"]) == use.sum()
+                continue
+            assert float(cell["calibration_scatter"]) == pytest.approx(
+                np.std(values[use], ddof=1), rel=1e-12)
+            assert float(cell["calibration_bound"]) == pytest.approx(np.mean(bounds[use]),
+                                                                     rel=1e-12)
+            ratio = float(cell["calibration_ratio"])
+            assert np.isfinite(ratio) and 1e-3 < ratio < 1e3, (name, bound, ratio)
+        white = cal["calibration_bound"].sel(dominant=name, bound="time_domain_white")
+        corrected = cal["calibration_bound"].sel(dominant=name, bound="time_domain_corrected")
+        if bool(np.isfinite(white)) and bool(np.isfinite(corrected)):
+            assert float(corrected) > float(white), name
 
 
 def test_diverged_estimates_are_drawn_off_scale(tmp_path):
