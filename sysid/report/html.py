@@ -52,6 +52,7 @@ from sysid.report.sections import (SECTIONS, PairResult, index, section_conditio
                                    section_derivatives, section_guidelines, section_inputs,
                                    section_pairs, section_provenance, section_reduction,
                                    section_time, section_trim)
+from sysid.report.handling_qualities import section_handling_qualities
 
 __all__ = ["write_report", "build_html"]
 
@@ -92,6 +93,8 @@ def _page(ctx: Context, title: str | None) -> str:
         body["guidelines"] = section_guidelines(ctx, pair_results, time)
         body["reduction"] = section_reduction(ctx)
         body["provenance"] = section_provenance(ctx)
+    with progress.stage("report: handling qualities (ADS-33E-PRF), hold margins"):
+        body["handling_qualities"] = section_handling_qualities(ctx)
     root = tree.to_dataset(inherit=False).attrs
     if title is None:
         name = root.get("campaign", root.get("name", "campaign"))

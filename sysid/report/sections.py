@@ -685,6 +685,7 @@ SECTIONS = (
     ("derivatives", "Derivatives", "Tables 2-3"),
     ("guidelines", "Cost and guideline summary", ""),
     ("reduction", "Model reduction", ""),
+    ("handling_qualities", "Handling qualities (ADS-33E-PRF) and hold margins", ""),
     ("provenance", "Provenance", ""),
 )
 

@@ -1,0 +1,446 @@
+"""ADS-33E-PRF bandwidth and phase delay of the attitude responses, with Level boundaries.
+
+For an attitude response ``H(j omega)`` (theta/lon, phi/lat, psi/ped; deg per %), with its phase
+``phi(omega)`` unwrapped from a reference frequency (docs/methods.md, "Handling qualities"):
+
+    omega_180        phi(omega_180) = -180 deg (the first crossing above the reference)
+    omega_BW,phase   phi = -135 deg: 45 deg of phase margin (the last crossing below omega_180)
+    omega_BW,gain    |H| = |H(omega_180)| + 6 dB: 6 dB of gain margin (the last crossing below
+                     omega_180)
+    tau_p            -(phi(2 omega_180) + 180 deg) / (57.3 * 2 omega_180)     (s)
+
+and the governing bandwidth ADS-33E-PRF 3.3.2.1 prescribes: for rate response types the lesser
+of ``omega_BW,gain`` and ``omega_BW,phase`` (``omega_BW,phase`` where the gain bandwidth is
+undefined), for attitude-command/attitude-hold response types ``omega_BW,phase``.
+
+Uncertainty from the composite random error ``eps_r`` (Eq. 13-14): the phase is uncertain by
+``(180/pi) eps_r`` deg and the magnitude by ``(20/ln 10) eps_r`` dB, so a crossing of a level
+moves by ``sigma_curve / |d curve / d ln omega|`` in ``ln omega``; the gain bandwidth adds the
+uncertainty of its level ``|H(omega_180)| + 6 dB`` (from the magnitude and from
+``omega_180``), and ``tau_p`` that of ``phi(2 omega_180)`` and of ``omega_180`` (first-order
+propagation, errors at different frequencies independent).
+
+Sources (:func:`handling_qualities`): the composite data (the measured attitude, or the rate
+integrated, ``H/(j omega)``, where the attitude is not measured), the truth's full
+linearisation (``/linearization_full``: rotor, inflow and actuators, the truth), its
+quasi-steady reduction (``/linearization``) and every identified model (``/models/<method>``).
+The phase of each is unwrapped on the same branch, fixed at the lowest frequency of the data's
+coherent band (coherence >= 0.6), where it is put in (-360, 0] deg.
+
+Sample and hold: a campaign flown by :func:`sysid.flight_test.campaign.run_campaign` holds each
+control sample over the sample interval ``dt`` and records the response at the start of the
+hold, so its data carry the zero-order hold ``e^{-j omega dt/2} sinc(omega dt / 2)`` (a 5 ms
+delay at 100 Hz) that the continuous linearisations lack; identified models absorb it in their
+delays. The truth sources get it too (``sample_hold``), so that data and truth describe the
+same sampled system (docs/notes/2026-11-25-handling-qualities-hover.md measures the effect).
+
+Level boundaries (:data:`ADS33_BOUNDARIES`): hover and low speed, target acquisition and
+tracking, and all other MTEs, for pitch, roll and yaw (ADS-33E-PRF 3.3.2.1, 3.3.5.1, 3.3.9.1).
+A point is Level 1 when it lies right of (below) the Level-1 boundary, Level 2 right of the
+Level-2 boundary, else Level 3.
+
+References
+----------
+* ADS-33E-PRF, *Aeronautical Design Standard, Performance Specification, Handling Qualities
+  Requirements for Military Rotorcraft*, US Army AMCOM, 2000, 3.3.2.1, 3.3.5.1, 3.3.9.1.
+* Tischler, M. B. and Remple, R. K., *Aircraft and Rotorcraft System Identification*, 2nd ed.,
+  AIAA, 2012, ch. 15 (bandwidth and phase delay from identified frequency responses).
+* docs/methods.md, "Handling qualities and broken-loop margins".
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import xarray as xr
+
+from sysid.assess.margins import crossings, interp_log
+from sysid.core.errors import InputDataError
+from sysid.core.guidelines import COHERENCE_MIN
+from sysid.core.util import Progress
+from sysid.data.campaign import CampaignData
+from sysid.identify.frequency_domain import select_fit_data
+from sysid.identify.transfer_function import RATE_OF, TRUTH_SOURCES, pair_response
+from sysid.models import frequency_response
+
+__all__ = ["AXES", "RESPONSE_TYPES", "MTES", "ADS33_BOUNDARIES", "ADS33_SOURCE",
+           "bandwidth_phase_delay", "boundary_bandwidth", "ads33_level", "attitude_responses",
+           "handling_qualities", "sample_hold_interval", "OMEGA_REF_DEFAULT", "MODEL_GRID"]
+
+#: Attitude response of each axis: (attitude, control).
+AXES = {"pitch": ("theta", "lon"), "roll": ("phi", "lat"), "yaw": ("psi", "ped")}
+#: ADS-33E-PRF response types whose governing bandwidth differs (module docstring).
+RESPONSE_TYPES = ("rate", "attitude")
+#: Mission-task-element classes of the hover and low-speed charts.
+MTES = ("tracking", "other")
+#: Reference frequency (rad/s) of the phase branch and the crossing search when there are no
+#: data to take the coherent band from.
+OMEGA_REF_DEFAULT = 1.0
+#: Grid of the model responses (rad/s): 2000 log-spaced points over 0.05-100 rad/s.
+MODEL_GRID = (0.05, 100.0, 2000)
+#: Degrees per radian as ADS-33E-PRF writes the phase-delay formula.
+DEG_PER_RAD = 57.3
+
+#: Where the Level boundaries come from.
+ADS33_SOURCE = ("ADS-33E-PRF (2000), hover and low speed: Figure 1 of 3.3.2.1 (pitch and "
+                "roll) and the yaw figure of 3.3.9.1; corner points as transcribed in "
+                "docs/methods.md, not checked against a copy of the specification")
+
+#: Level boundaries of the bandwidth (rad/s) / phase-delay (s) charts, hover and low speed:
+#: ``{(axis, mte): {"L1": [(omega_BW, tau_p), ...], "L2": [...]}}``, each boundary from the
+#: ``tau_p = 0`` axis upwards; beyond its last corner it continues with its last segment's
+#: slope. See :data:`ADS33_SOURCE` and docs/methods.md (the same numbers, with the caveat).
+ADS33_BOUNDARIES: dict[tuple[str, str], dict[str, tuple[tuple[float, float], ...]]] = {
+    ("pitch", "tracking"): {"L1": ((2.0, 0.0), (2.0, 0.12), (4.0, 0.20)),
+                            "L2": ((1.0, 0.0), (1.0, 0.20), (4.0, 0.30))},
+    ("roll", "tracking"): {"L1": ((2.5, 0.0), (2.5, 0.12), (4.0, 0.16)),
+                           "L2": ((1.5, 0.0), (1.5, 0.20), (4.0, 0.26))},
+    ("yaw", "tracking"): {"L1": ((3.5, 0.0), (3.5, 0.06), (6.0, 0.12)),
+                          "L2": ((2.0, 0.0), (2.0, 0.20), (6.0, 0.30))},
+    ("pitch", "other"): {"L1": ((1.0, 0.0), (1.0, 0.20), (4.0, 0.30)),
+                         "L2": ((0.5, 0.0), (0.5, 0.30), (4.0, 0.40))},
+    ("roll", "other"): {"L1": ((1.5, 0.0), (1.5, 0.20), (4.0, 0.30)),
+                        "L2": ((1.0, 0.0), (1.0, 0.30), (4.0, 0.40))},
+    ("yaw", "other"): {"L1": ((2.0, 0.0), (2.0, 0.10), (6.0, 0.20)),
+                       "L2": ((1.0, 0.0), (1.0, 0.20), (6.0, 0.30))},
+}
+
+_QUANTITIES = ("omega_180", "bandwidth_phase", "bandwidth_gain", "bandwidth", "tau_p")
+
+
+def _slope(omega, y) -> np.ndarray:
+    """dy / d ln omega on the grid (central differences)."""
+    return np.gradient(np.asarray(y, float), np.log(np.asarray(omega, float)))
+
+
+def bandwidth_phase_delay(omega, H, *, coherence=None, random_error=None,
+                          response_type: str = "rate",
+                          omega_ref: float | None = None) -> dict[str, float]:
+    """ADS-33E-PRF bandwidth and phase delay of one attitude response (module docstring).
+
+    Parameters
+    ----------
+    omega : array
+        Ascending frequencies, rad/s.
+    H : array, complex
+        The attitude response on ``omega`` (NaN points are skipped).
+    coherence, random_error : array, optional
+        Coherence and normalised random error on ``omega`` (data); they give the coherence at
+        each point and the ``*_std`` uncertainties (NaN without them).
+    response_type : {"rate", "attitude"}
+        Which bandwidth governs.
+    omega_ref : float, optional
+        Phase branch and start of the crossing search (rad/s); default the lowest frequency.
+
+    Returns
+    -------
+    dict
+        ``omega_180``, ``bandwidth_phase``, ``bandwidth_gain``, ``bandwidth`` (rad/s),
+        ``tau_p`` (s), ``gain_180_db`` (dB), ``phase_2w180`` (deg), ``coherence_<q>`` at
+        ``omega_180``, each bandwidth and ``2 omega_180`` (``coherence_tau_p``),
+        ``<q>_std`` (one standard deviation), ``governing`` (``"phase"``/``"gain"``/``""``).
+        NaN where a crossing is not on the grid.
+
+    Examples
+    --------
+    >>> w = np.logspace(-1, 2, 3000)
+    >>> s = 1j * w
+    >>> out = bandwidth_phase_delay(w, 2.0 * np.exp(-0.05 * s) / (s * (0.1 * s + 1)))
+    >>> round(out["bandwidth"], 3), round(out["tau_p"], 4)
+    """
+    if response_type not in RESPONSE_TYPES:
+        raise InputDataError(f"response_type {response_type!r}: expected one of "
+                             f"{RESPONSE_TYPES}")
+    omega = np.asarray(omega, float)
+    H = np.asarray(H, complex)
+    if omega.shape != H.shape or omega.ndim != 1:
+        raise InputDataError(f"bandwidth_phase_delay: omega {omega.shape} and H {H.shape} "
+                             "must be 1-D of the same length")
+    nan = math.nan
+    out: dict[str, float | str] = {k: nan for k in _QUANTITIES}
+    out.update({f"{k}_std": nan for k in _QUANTITIES})
+    out.update({f"coherence_{k}": nan for k in _QUANTITIES if k != "bandwidth"})
+    out.update(gain_180_db=nan, phase_2w180=nan, governing="")
+    ok = np.isfinite(H) & (omega > 0) & (np.abs(H) > 0)
+    if ok.sum() < 3:
+        return out
+    w = omega[ok]
+    Hk = H[ok]
+    g2 = (np.asarray(coherence, float)[ok] if coherence is not None
+          else np.full(w.shape, nan))
+    eps = (np.asarray(random_error, float)[ok] if random_error is not None
+           else np.full(w.shape, nan))
+    ref = float(w[0]) if omega_ref is None else float(omega_ref)
+    phase = np.rad2deg(np.unwrap(np.angle(Hk)))
+    p_ref = float(interp_log(w, phase, min(max(ref, w[0]), w[-1])))
+    phase -= 360.0 * math.ceil(p_ref / 360.0)  # branch: phase(ref) in (-360, 0]
+    gain = 20.0 * np.log10(np.abs(Hk))
+    above = lambda xs: xs[xs >= ref]  # noqa: E731
+    c180 = above(crossings(w, phase, -180.0))
+    if c180.size == 0:
+        return out
+    w180 = float(c180[0])
+    g180 = float(interp_log(w, gain, w180))
+    out.update(omega_180=w180, gain_180_db=g180)
+    below = lambda xs: xs[(xs >= ref) & (xs <= w180)]  # noqa: E731
+    cp = below(crossings(w, phase, -135.0))
+    cg = below(crossings(w, gain, g180 + 6.0))
+    bw_p = float(cp[-1]) if cp.size else nan
+    bw_g = float(cg[-1]) if cg.size else nan
+    w2 = 2.0 * w180
+    phi2 = float(interp_log(w, phase, w2))
+    tau_p = -(phi2 + 180.0) / (DEG_PER_RAD * w2)
+    if response_type == "attitude" or not math.isfinite(bw_g):
+        bw, governing = bw_p, "phase"
+    else:
+        bw, governing = (bw_g, "gain") if bw_g < bw_p or not math.isfinite(bw_p) else \
+            (bw_p, "phase")
+    if not math.isfinite(bw):
+        governing = ""
+    out.update(bandwidth_phase=bw_p, bandwidth_gain=bw_g, bandwidth=bw, tau_p=tau_p,
+               phase_2w180=phi2, governing=governing)
+    for key, at in (("omega_180", w180), ("bandwidth_phase", bw_p),
+                    ("bandwidth_gain", bw_g), ("tau_p", w2)):
+        out[f"coherence_{key}"] = float(interp_log(w, g2, at))
+    # uncertainties (first order, module docstring)
+    s_ph = np.rad2deg(eps)                      # deg
+    s_g = (20.0 / math.log(10.0)) * eps         # dB
+    dph = _slope(w, phase)
+    dg = _slope(w, gain)
+
+    def at(y, x):
+        return float(interp_log(w, y, x))
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s_ln180 = at(s_ph, w180) / abs(at(dph, w180))
+        out["omega_180_std"] = w180 * s_ln180
+        out["bandwidth_phase_std"] = bw_p * at(s_ph, bw_p) / abs(at(dph, bw_p))
+        s_level = math.hypot(at(s_g, w180), at(dg, w180) * s_ln180)
+        out["bandwidth_gain_std"] = bw_g * math.hypot(at(s_g, bw_g), s_level) / abs(at(dg, bw_g))
+        c = 1.0 / (DEG_PER_RAD * w2)
+        out["tau_p_std"] = math.hypot(c * at(s_ph, w2), (c * at(dph, w2) + tau_p) * s_ln180)
+    out["bandwidth_std"] = (out["bandwidth_gain_std"] if governing == "gain"
+                            else out["bandwidth_phase_std"] if governing == "phase" else nan)
+    return out
+
+
+def boundary_bandwidth(points: Sequence[tuple[float, float]], tau_p) -> np.ndarray:
+    """Bandwidth (rad/s) of a Level boundary at phase delay ``tau_p`` (s): the boundary
+    polyline interpolated in ``tau_p`` (negative delays count as 0), continued beyond its last
+    corner with its last segment's slope."""
+    pts = np.asarray(points, float)
+    tau = np.maximum(np.asarray(tau_p, float), 0.0)
+    w = np.interp(tau, pts[:, 1], pts[:, 0])
+    (w0, t0), (w1, t1) = pts[-2], pts[-1]
+    slope = (w1 - w0) / (t1 - t0) if t1 != t0 else 0.0
+    return np.where(tau > pts[-1, 1], w1 + slope * (tau - t1), w)
+
+
+def ads33_level(bandwidth, tau_p, *, axis: str, mte: str) -> np.ndarray:
+    """ADS-33E-PRF Level (1, 2 or 3) of bandwidth/phase-delay points; 0 where either is NaN.
+
+    ``axis`` in :data:`AXES`, ``mte`` in :data:`MTES` (hover and low speed)."""
+    key = (axis, mte)
+    if key not in ADS33_BOUNDARIES:
+        raise InputDataError(f"no ADS-33E-PRF boundary for axis {axis!r} and MTE {mte!r} "
+                             f"(axes {list(AXES)}, MTEs {list(MTES)})")
+    bw = np.asarray(bandwidth, float)
+    tau = np.asarray(tau_p, float)
+    bounds = ADS33_BOUNDARIES[key]
+    level = np.where(bw >= boundary_bandwidth(bounds["L1"], tau), 1,
+                     np.where(bw >= boundary_bandwidth(bounds["L2"], tau), 2, 3))
+    return np.where(np.isfinite(bw) & np.isfinite(tau), level, 0)
+
+
+# --------------------------------------------------------------------------------------------
+# a campaign
+
+
+def _model_grid() -> np.ndarray:
+    lo, hi, n = MODEL_GRID
+    return np.logspace(math.log10(lo), math.log10(hi), int(n))
+
+
+def attitude_responses(data: CampaignData, *, sources: Sequence[str] | None = None,
+                       coherence_min: float = COHERENCE_MIN,
+                       sample_hold: float | None = None) -> dict:
+    """The attitude responses of every source, per axis.
+
+    Returns ``{axis: {"pair", "origin", "omega_ref", "responses": {source: (omega, H,
+    coherence or None, random_error or None)}}}``. ``origin`` says whether the data's attitude
+    was measured or integrated from the rate; ``omega_ref`` is the lowest frequency of the
+    data's coherent band (:data:`OMEGA_REF_DEFAULT` without data). Sources: ``data``,
+    ``linearization_full``, ``linearization`` and the ``/models`` methods, those present (or
+    the ones named in ``sources``). ``sample_hold`` (s): the zero-order hold applied to the
+    truth sources (module docstring); None: none.
+    """
+    fr = data.frequency_response()
+    models: dict[str, xr.Dataset] = {}
+    for name in ("linearization_full", "linearization"):
+        ds = data.group(name)
+        if ds is not None and "A" in ds and "B" in ds:
+            models[name] = ds
+    models.update({m: ds for m, ds in data.models().items() if "A" in ds and "B" in ds})
+    wanted = list(sources) if sources is not None else (["data"] if fr is not None else []) \
+        + list(models)
+    unknown = [s for s in wanted if s != "data" and s not in models]
+    if unknown or ("data" in wanted and fr is None):
+        raise InputDataError(f"campaign {data.source}: sources {unknown or ['data']} not "
+                             f"found (available: {(['data'] if fr is not None else []) + list(models)})")
+    grid = _model_grid()
+    out = {}
+    for axis, (attitude, control) in AXES.items():
+        entry = {"pair": f"{attitude}/{control}", "origin": "", "omega_ref": OMEGA_REF_DEFAULT,
+                 "responses": {}}
+        if fr is not None:
+            ds, origin = pair_response(fr, attitude, control)
+            entry["origin"] = origin
+            pair = (attitude, control)
+            try:
+                sel = select_fit_data(ds, [pair], coherence_min=coherence_min, n_points=2)
+                entry["omega_ref"] = float(sel.ranges[f"{attitude}/{control}"][0])
+            except Exception:  # noqa: BLE001 - no coherent band: keep the default reference
+                pass
+            if "data" in wanted:
+                cvar = "partial_coherence" if "partial_coherence" in ds else "coherence"
+                one = ds.sel(output=attitude, input=control)
+                entry["responses"]["data"] = (
+                    ds["frequency"].values, one["H"].values, one[cvar].values,
+                    one["random_error"].values if "random_error" in ds else None)
+        for name, model in models.items():
+            if name not in wanted:
+                continue
+            T = frequency_response(model, grid)
+            outs = [str(x) for x in T["output"].values]
+            if control not in [str(x) for x in T["input"].values]:
+                continue
+            if attitude in outs:
+                H = T.sel(output=attitude, input=control).values
+            elif RATE_OF[attitude] in outs:
+                H = T.sel(output=RATE_OF[attitude], input=control).values / (1j * grid)
+            else:
+                continue
+            if sample_hold and name in TRUTH_SOURCES:
+                x = grid * sample_hold / 2.0
+                H = H * np.exp(-1j * x) * np.sinc(x / np.pi)
+            entry["responses"][name] = (grid, H, None, None)
+        out[axis] = entry
+    return out
+
+
+def sample_hold_interval(data: CampaignData) -> float | None:
+    """The zero-order hold (s) of a campaign's data: the frequency response's
+    ``sample_interval`` when the campaign was flown by sysid (root ``campaign_toml``), else
+    None (imported data: unknown)."""
+    fr = data.frequency_response()
+    if fr is None or not data.tree.attrs.get("campaign_toml"):
+        return None
+    dt = fr.attrs.get("sample_interval")
+    return float(dt) if dt is not None and float(dt) > 0 else None
+
+
+def handling_qualities(data: CampaignData, *, response_type: str | Mapping[str, str] = "rate",
+                       sources: Sequence[str] | None = None,
+                       sample_hold: float | str | None = "auto",
+                       coherence_min: float = COHERENCE_MIN, quiet: bool = True,
+                       progress: Progress | None = None) -> xr.Dataset:
+    """ADS-33E-PRF bandwidth, phase delay and Level of the pitch, roll and yaw attitude
+    responses of a campaign's data, truth linearisations and identified models.
+
+    Parameters
+    ----------
+    data : CampaignData
+        A campaign with ``/frequency_response`` and/or ``/linearization_full``,
+        ``/linearization``, ``/models/<method>``.
+    response_type : str or mapping
+        ``"rate"`` (default: the bare airframe) or ``"attitude"`` (ACAH), or per axis
+        (``{"pitch": "attitude", ...}``).
+    sources : sequence of str, optional
+        Restrict to these sources (``data``, ``linearization_full``, ``linearization``,
+        model methods).
+    coherence_min : float
+        The coherent band whose lowest frequency fixes the phase branch (default 0.6).
+    sample_hold : float, "auto" or None
+        Zero-order hold (s) applied to the truth linearisations (module docstring); "auto":
+        :func:`sample_hold_interval`.
+
+    Returns
+    -------
+    xr.Dataset
+        dims ``axis`` (pitch, roll, yaw; coordinate ``pair``) and ``source``; variables
+        ``omega_180``, ``bandwidth_phase``, ``bandwidth_gain``, ``bandwidth`` (rad/s),
+        ``tau_p`` (s), each with ``<name>_std``; ``coherence_omega_180``,
+        ``coherence_bandwidth_phase``, ``coherence_bandwidth_gain``, ``coherence_tau_p`` (the
+        coherence at ``2 omega_180``; NaN for models), ``gain_180_db``, ``phase_2w180``,
+        ``governing`` (str), ``level_tracking``, ``level_other`` (1-3; 0 undefined),
+        ``response_type`` and ``origin`` (axis) and ``omega_ref`` (axis, rad/s). Attributes
+        ``boundaries`` (:data:`ADS33_SOURCE`), ``coherence_min``, ``truth_sample_hold_s``
+        (the hold applied to the truth sources; 0: none).
+
+    Examples
+    --------
+    >>> hq = handling_qualities(CampaignData.read("campaign.nc"))
+    >>> hq["bandwidth"].sel(source=["data", "linearization_full"]).to_pandas()
+    """
+    progress = progress or Progress(quiet=quiet)
+    types = ({a: response_type for a in AXES} if isinstance(response_type, str)
+             else {a: response_type.get(a, "rate") for a in AXES})
+    bad = {a: t for a, t in types.items() if t not in RESPONSE_TYPES}
+    if bad:
+        raise InputDataError(f"response types {bad}: expected one of {RESPONSE_TYPES}")
+    hold = sample_hold_interval(data) if sample_hold == "auto" else sample_hold
+    responses = attitude_responses(data, sources=sources, coherence_min=coherence_min,
+                                   sample_hold=hold)
+    names: list[str] = []
+    for entry in responses.values():
+        names += [n for n in entry["responses"] if n not in names]
+    if not names:
+        raise InputDataError(f"campaign {data.source}: no frequency response, linearisation "
+                             "or model to assess")
+    axes = list(AXES)
+    numeric = None
+    strings = {"governing": np.full((len(axes), len(names)), "", dtype=object)}
+    for a, axis in enumerate(axes):
+        entry = responses[axis]
+        for k, name in enumerate(names):
+            if name not in entry["responses"]:
+                continue
+            w, H, g2, eps = entry["responses"][name]
+            res = bandwidth_phase_delay(w, H, coherence=g2, random_error=eps,
+                                        response_type=types[axis], omega_ref=entry["omega_ref"])
+            if numeric is None:
+                numeric = {key: np.full((len(axes), len(names)), np.nan)
+                           for key, v in res.items() if not isinstance(v, str)}
+            for key in numeric:
+                numeric[key][a, k] = res[key]
+            strings["governing"][a, k] = res["governing"]
+            progress.message(f"[sysid] handling qualities: {axis} ({entry['pair']}) {name}: "
+                             f"omega_BW {res['bandwidth']:.3g} rad/s, tau_p "
+                             f"{res['tau_p']:.3g} s")
+    if numeric is None:
+        raise InputDataError(f"campaign {data.source}: no attitude response for any axis")
+    units = {"tau_p": "s", "tau_p_std": "s", "gain_180_db": "dB", "phase_2w180": "deg"}
+    ds = xr.Dataset(coords={"axis": axes, "source": names,
+                            "pair": ("axis", [responses[a]["pair"] for a in axes])})
+    for key, v in numeric.items():
+        unit = units.get(key, "1" if key.startswith("coherence") else "rad/s")
+        ds[key] = (("axis", "source"), v, {"units": unit})
+    ds["governing"] = (("axis", "source"), strings["governing"].astype(str))
+    for mte in MTES:
+        ds[f"level_{mte}"] = (("axis", "source"), np.stack(
+            [ads33_level(ds["bandwidth"].values[a], ds["tau_p"].values[a], axis=axis, mte=mte)
+             for a, axis in enumerate(axes)]).astype(int),
+            {"long_name": f"ADS-33E-PRF Level, hover and low speed, "
+                          f"{'target acquisition and tracking' if mte == 'tracking' else 'all other MTEs'}"
+                          " (0: undefined)"})
+    ds["response_type"] = ("axis", [types[a] for a in axes])
+    ds["origin"] = ("axis", [responses[a]["origin"] for a in axes])
+    ds["omega_ref"] = ("axis", [responses[a]["omega_ref"] for a in axes], {"units": "rad/s"})
+    ds.attrs = {"boundaries": ADS33_SOURCE, "coherence_min": float(coherence_min),
+                "phase_delay": "tau_p = -(phase(2 omega_180) + 180 deg) / "
+                               "(57.3 * 2 omega_180)",
+                "uncertainty": "one standard deviation from the composite random error",
+                "truth_sample_hold_s": float(hold) if hold else 0.0}
+    return ds

@@ -1,0 +1,252 @@
+"""Broken-loop utilities: crossover, gain and phase margins of a loop transfer function.
+
+A loop ``L(j omega)`` (negative feedback: the closed loop is ``L / (1 + L)``) has
+
+    gain crossover  omega_c :  |L(j omega_c)| = 1,       phase margin  PM = 180 + angle L(j omega_c)
+    phase crossover omega_p :  angle L(j omega_p) = -180, gain margin   GM = 1 / |L(j omega_p)|
+
+(deg; GM also in dB, ``-20 log10 |L(j omega_p)|``). The margins come from
+:func:`control.stability_margins` on the frequency data (magnitude, phase in deg, rad/s),
+which interpolates the crossings and, with several, returns the smallest margins; the
+frequency data carry any delay exactly, where a state-space form would need a Pade
+approximant.
+
+The campaign's stabilisation loops (:mod:`sysid.flight_test.campaign`: attitude holds on the
+cyclic and pedal, a vertical-speed hold on the collective, designed on the quasi-steady
+linearisation) are broken one at a time at their control, with the other holds closed, on the
+truth's full linearisation (rotor, inflow and actuator states):
+
+    L_c(s) = -K_c (sI - A - B_o K_o)^-1 B_c
+
+with ``delta = K x`` the hold law linearised about trim (:func:`sysid.flight_test.campaign.hold_gains`,
+which differentiates the very law flown), ``K_c`` its row for control ``c`` and ``B_o K_o`` the
+other loops. One configuration per excited axis, as the campaign flies them (the excited
+axis keeps a weaker hold).
+
+References
+----------
+* Tischler, M. B. and Remple, R. K., *Aircraft and Rotorcraft System Identification*, 2nd ed.,
+  AIAA, 2012, ch. 15 (broken-loop response, crossover frequency and stability margins).
+* docs/methods.md, "Handling qualities and broken-loop margins".
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+
+import numpy as np
+import xarray as xr
+
+from sysid.core.errors import InputDataError
+from sysid.core.units import CONTROLS, STATES_6DOF
+from sysid.data.campaign import CampaignData
+from sysid.flight_test.campaign import MEASUREMENTS, Campaign, design_loops, hold_gains
+from sysid.models import model_matrices
+
+__all__ = ["crossings", "interp_log", "loop_margins", "broken_loop_response", "hold_margins",
+           "MARGIN_GRID"]
+
+#: Frequency grid (rad/s) of the hold loops' broken-loop responses: 4000 log-spaced points
+#: from 0.01 to 200 rad/s (the holds cross over at 0.3-1 rad/s; the rotor modes end below
+#: 200 rad/s). Dense enough that interpolated crossings are exact to well under 0.1 %.
+MARGIN_GRID = (0.01, 200.0, 4000)
+
+
+def crossings(omega, y, level: float) -> np.ndarray:
+    """Frequencies (rad/s) where ``y`` crosses ``level``, interpolated linearly in log omega.
+
+    ``omega`` ascending and positive, ``y`` the same shape (NaN points break the curve).
+    Returns the crossings in ascending order (empty when none); a sample exactly on the level
+    counts once.
+    """
+    w = np.asarray(omega, float)
+    d = np.asarray(y, float) - level
+    a, b = d[:-1], d[1:]
+    ok = np.isfinite(a) & np.isfinite(b)
+    hit = ok & (((a < 0) & (b >= 0)) | ((a > 0) & (b <= 0)) | ((a == 0) & (b != 0)))
+    k = np.flatnonzero(hit)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = np.where(b[k] != a[k], -a[k] / (b[k] - a[k]), 0.0)
+    lw = np.log(w)
+    return np.exp(lw[k] + t * (lw[k + 1] - lw[k]))
+
+
+def interp_log(omega, y, at) -> np.ndarray:
+    """``y`` interpolated linearly in log omega at ``at`` (rad/s); NaN outside the grid."""
+    w = np.asarray(omega, float)
+    at = np.asarray(at, float)
+    out = np.interp(np.log(np.clip(at, 1e-300, None)), np.log(w), np.asarray(y, float),
+                    left=np.nan, right=np.nan)
+    return np.where(np.isfinite(at), out, np.nan)
+
+
+def loop_margins(L, omega=None) -> dict[str, float]:
+    """Crossover and margins of a loop's frequency response (negative feedback).
+
+    With several crossings (a loop around an unstable airframe is conditionally stable) the
+    crossover is the *highest* gain crossover (the loop's bandwidth) and the phase margin is
+    taken there; the gain margin is the smallest gain increase to instability (phase
+    crossovers above the crossover) and ``gain_margin_low_db`` the smallest gain *reduction*
+    (phase crossovers below it, negative dB).
+
+    Parameters
+    ----------
+    L : array or xr.DataArray, complex
+        ``L(j omega)`` on an ascending grid; a DataArray brings its ``frequency`` coordinate.
+    omega : array, optional
+        rad/s (required for a plain array).
+
+    Returns
+    -------
+    dict
+        ``gain_crossover`` (rad/s), ``phase_margin`` (deg), ``phase_crossover`` (rad/s, of the
+        upper gain margin), ``gain_margin`` (ratio) and ``gain_margin_db``,
+        ``gain_margin_low_db`` and ``phase_crossover_low`` (rad/s), ``stability_margin`` (the
+        smallest distance of the Nyquist curve from -1). NaN (gain margins: inf) where the
+        curve has no such crossing on the grid.
+
+    Examples
+    --------
+    >>> w = np.logspace(-2, 3, 2000)
+    >>> s = 1j * w
+    >>> m = loop_margins(2.0 * np.exp(-0.05 * s) / (s * (0.2 * s + 1)), w)
+    >>> round(m["phase_margin"], 1), round(m["gain_margin_db"], 1)
+    (64.1, 20.3)
+    """
+    import control  # deferred: python-control is slow to import and only needed here
+
+    if isinstance(L, xr.DataArray):
+        if omega is None:
+            omega = L["frequency"].values
+        L = L.values
+    if omega is None:
+        raise InputDataError("loop_margins: give omega (rad/s) with a plain array")
+    L = np.asarray(L, complex)
+    omega = np.asarray(omega, float)
+    if L.shape != omega.shape or L.ndim != 1:
+        raise InputDataError(f"loop_margins: L has shape {L.shape}, omega {omega.shape}; "
+                             "expected two 1-D arrays of the same length")
+    ok = np.isfinite(L) & (omega > 0)
+    if ok.sum() < 2:
+        raise InputDataError("loop_margins: fewer than 2 finite points of the loop response")
+    w, L = omega[ok], L[ok]
+    phase = np.rad2deg(np.unwrap(np.angle(L)))
+    gm, pm, sm, wpc, wgc, _ = (np.atleast_1d(np.asarray(x, float)) for x in
+                               control.stability_margins((np.abs(L), phase, w), returnall=True))
+    out = {"gain_crossover": math.nan, "phase_margin": math.nan,
+           "phase_crossover": math.nan, "gain_margin": math.inf, "gain_margin_db": math.inf,
+           "phase_crossover_low": math.nan, "gain_margin_low_db": -math.inf,
+           "stability_margin": float(np.min(sm)) if sm.size else math.nan}
+    if wgc.size:
+        k = int(np.argmax(wgc))
+        out["gain_crossover"], out["phase_margin"] = float(wgc[k]), float(pm[k])
+    wc = out["gain_crossover"] if math.isfinite(out["gain_crossover"]) else 0.0
+    upper = np.flatnonzero(wpc > wc)
+    lower = np.flatnonzero(wpc <= wc)
+    if upper.size:
+        k = upper[np.argmin(gm[upper])]
+        out.update(phase_crossover=float(wpc[k]), gain_margin=float(gm[k]),
+                   gain_margin_db=20.0 * math.log10(gm[k]))
+    if lower.size:
+        k = lower[np.argmax(gm[lower])]
+        out.update(phase_crossover_low=float(wpc[k]),
+                   gain_margin_low_db=20.0 * math.log10(gm[k]))
+    return out
+
+
+def broken_loop_response(A, B, K, control: int, omega) -> np.ndarray:
+    """``L_c(j omega) = -K_c (j omega I - A - B_o K_o)^-1 B_c``: loop ``control`` broken at
+    its input, the others closed (``u = K x``; module docstring). Shapes ``A (n, n)``,
+    ``B (n, m)``, ``K (m, n)``; returns ``(n_omega,)`` complex."""
+    A, B, K = (np.asarray(x, float) for x in (A, B, K))
+    others = [j for j in range(B.shape[1]) if j != control]
+    A_o = A + B[:, others] @ K[others]
+    s = 1j * np.asarray(omega, float)
+    M = s[:, None, None] * np.eye(A.shape[0]) - A_o
+    X = np.linalg.solve(M, np.broadcast_to(B[:, control], (s.size, A.shape[0]))[..., None])
+    return -(X[..., 0] @ K[control])
+
+
+def _campaign_spec(data: CampaignData) -> Campaign:
+    text = data.tree.attrs.get("campaign_toml")
+    if not text:
+        raise InputDataError(f"campaign {data.source}: no 'campaign_toml' root attribute, so "
+                             "the holds that were flown are unknown (imported data has none)")
+    return Campaign.from_dict(tomllib.loads(str(text)), where=f"{data.source}: campaign_toml")
+
+
+def hold_margins(data: CampaignData, *, model: str = "linearization_full",
+                 grid: tuple[float, float, int] = MARGIN_GRID) -> xr.Dataset:
+    """Crossover and margins of each stabilisation hold of a flown campaign.
+
+    The holds are rebuilt from the campaign that was flown (root attribute ``campaign_toml``)
+    and the quasi-steady ``/linearization`` as :func:`sysid.flight_test.campaign.run_campaign`
+    designs them; each is broken at its control on ``/<model>`` (default the full
+    linearisation) with the others closed (module docstring).
+
+    Returns
+    -------
+    xr.Dataset
+        dims ``excited`` (the sweep axis of the configuration, CONTROLS) and ``hold`` (the
+        broken loop's control); the :func:`loop_margins` quantities ``gain_crossover``,
+        ``phase_margin`` (deg), ``phase_crossover``, ``gain_margin_db`` (dB),
+        ``phase_crossover_low``, ``gain_margin_low_db``, ``stability_margin``; attributes
+        ``model``, ``design_crossover`` (rad/s), ``heading_crossover``,
+        ``vertical_speed_bandwidth``.
+    """
+    spec = _campaign_spec(data)
+    stab = spec.stabilisation
+    if not stab.enabled:
+        raise InputDataError(f"campaign {data.source}: stabilisation is off; no holds to "
+                             "analyse")
+    lin = data.quasi_steady()
+    plant = data.group(model)
+    trim = data.group("trim")
+    for name, ds in (("linearization", lin), (model, plant), ("trim", trim)):
+        if ds is None:
+            raise InputDataError(f"campaign {data.source}: no /{name} group (written by the "
+                                 "flight-test stage)")
+    missing = [c for c in MEASUREMENTS if c not in trim]
+    if missing:
+        raise InputDataError(f"campaign {data.source}: /trim lacks {missing}")
+    trim_y = {c: float(trim[c]) for c in MEASUREMENTS}
+    loops = design_loops(lin, stab)
+    A, B, _, _, _ = model_matrices(plant)
+    states = [str(s) for s in plant["A"].state.values]
+    inputs = [str(s) for s in plant["B"].input.values]
+    absent = [s for s in STATES_6DOF if s not in states] + [c for c in CONTROLS
+                                                            if c not in inputs]
+    if absent:
+        raise InputDataError(f"campaign {data.source}: /{model} lacks {absent}")
+    B = B[:, [inputs.index(c) for c in CONTROLS]]
+    cols = [states.index(s) for s in STATES_6DOF]
+    omega = np.logspace(math.log10(grid[0]), math.log10(grid[1]), int(grid[2]))
+    keys = ("gain_crossover", "phase_margin", "phase_crossover", "gain_margin_db",
+            "phase_crossover_low", "gain_margin_low_db", "stability_margin")
+    out = {k: np.full((len(CONTROLS), len(CONTROLS)), np.nan) for k in keys}
+    for e, excited in enumerate(CONTROLS):
+        K = np.zeros((len(CONTROLS), len(states)))
+        K[:, cols] = hold_gains(loops, stab, trim_y, excited).sel(input=list(CONTROLS)).values
+        for h in range(len(CONTROLS)):
+            m = loop_margins(broken_loop_response(A, B, K, h, omega), omega)
+            for k in keys:
+                out[k][e, h] = m[k]
+    units = {"gain_crossover": "rad/s", "phase_crossover": "rad/s", "phase_margin": "deg",
+             "gain_margin_db": "dB", "phase_crossover_low": "rad/s",
+             "gain_margin_low_db": "dB", "stability_margin": "1"}
+    names = {"gain_crossover": "highest gain crossover frequency (|L| = 1)",
+             "phase_margin": "phase margin at the gain crossover",
+             "phase_crossover": "phase crossover above the gain crossover (angle L = -180)",
+             "gain_margin_db": "gain margin: smallest gain increase to instability",
+             "phase_crossover_low": "phase crossover below the gain crossover",
+             "gain_margin_low_db": "lower gain margin: smallest gain reduction to instability "
+                                   "(conditionally stable loop)",
+             "stability_margin": "smallest distance of L(j omega) from -1"}
+    return xr.Dataset({k: (("excited", "hold"), v, {"units": units[k], "long_name": names[k]})
+                       for k, v in out.items()},
+                      coords={"excited": list(CONTROLS), "hold": list(CONTROLS)},
+                      attrs={"model": model, "design_crossover": float(stab.crossover),
+                             "heading_crossover": float(stab.heading_crossover),
+                             "vertical_speed_bandwidth": float(stab.vertical_speed_bandwidth),
+                             "loop": "L_c = -K_c (sI - A - B_o K_o)^-1 B_c, other holds closed"})
