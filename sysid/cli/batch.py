@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 
-from sysid.pipeline.batch import default_conditions, format_summary, load_conditions, run_batch
+from sysid.pipeline.batch import (default_conditions, format_calibration, format_summary,
+                                  load_conditions, run_batch)
 
 
 def register(subparsers) -> None:
@@ -14,7 +15,9 @@ def register(subparsers) -> None:
                     "noise seeds as independent Dask tasks (a local cluster of processes by "
                     "default, an existing scheduler with --scheduler), combine the results "
                     "into one netCDF file with a condition dimension, plot every derivative "
-                    "against airspeed and summarise the Monte Carlo scatter. A failing "
+                    "against airspeed and summarise the Monte Carlo scatter (with several "
+                    "seeds at an airspeed: scatter over seeds / mean bound of each dominant "
+                    "derivative in both domains, batch_calibration.png). A failing "
                     "condition is reported and the others complete; re-running resumes from "
                     "what is on disk.")
     p.add_argument("speeds", nargs="?", default=None,
@@ -41,5 +44,7 @@ def run(args) -> int:
     result = run_batch(conditions, args.output, scheduler=args.scheduler,
                        n_workers=args.workers, quiet=args.quiet)
     print(format_summary(result.dataset))
+    if "calibration_ratio" in result.dataset:
+        print(format_calibration(result.dataset))
     print(result.out_dir / "batch.nc")
     return 0 if not result.failures else 3
