@@ -28,3 +28,14 @@ def hover_trim(truth_fmu):
     from sysid.truth import trim
 
     return trim(0.0, fmu=truth_fmu)
+
+
+@pytest.fixture(scope="session")
+def hover_study(tmp_path_factory, truth_fmu):
+    """The README's hover study (default settings), run once per session:
+    ``{"dir", "report", "tree"}`` (output folder, report.html, the campaign DataTree)."""
+    from sysid.pipeline.study import StudySettings, run_study, study_tree
+
+    out = tmp_path_factory.mktemp("hover_study_session")
+    report = run_study(out, StudySettings(), quiet=True)
+    return {"dir": out, "report": report, "tree": study_tree(out)}
