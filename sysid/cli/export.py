@@ -54,14 +54,13 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "export", help="export an identified model of a campaign as an FMU",
-        description="Write a campaign model (/models/<name>) as one FMI 2.0 FMU (model "
-                    "exchange and co-simulation, C sources included), in the truth FMU's "
-                    "absolute units.")
+        description="Write a campaign model (/models/<name>) as one FMI 2.0 or 3.0 FMU "
+                    "(model exchange and co-simulation, exact directional derivatives, C "
+                    "sources included), in the truth FMU's absolute units.")
     p.add_argument("campaign", help="campaign netCDF file")
     p.add_argument("--model", required=True, help="model group name, e.g. frequency_domain")
     p.add_argument("-o", "--output", help="FMU file to write (default <model>.fmu)")
-    p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version (3: not "
-                   "available yet)")
+    p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version (default 2)")
     p.add_argument("--name", help="model name in the FMU (default sysid_<model>)")
     p.add_argument("--step", type=float, default=0.01, help="default communication step, s")
     p.add_argument("--me-delay", choices=("buffer", "pade"), default="buffer",

@@ -13,7 +13,7 @@ _CONTROLS = ("lon", "lat", "col", "ped")
 
 
 def _cmd_build(args: argparse.Namespace) -> int:
-    print(build_fmu(force=args.force))
+    print(build_fmu(force=args.force, fmi_version=args.fmi))
     return 0
 
 
@@ -68,6 +68,8 @@ def register(subparsers) -> None:
                               description="Build the truth helicopter FMU from fmus/ with the "
                                           "machine's C compiler (cached by source hash).")
     p.add_argument("--force", action="store_true", help="rebuild even if cached")
+    p.add_argument("--fmi", type=int, choices=(2, 3), default=2,
+                   help="FMI version of the FMU (default 2; both carry ME and CS)")
     p.set_defaults(func=_cmd_build)
 
     p = subparsers.add_parser("trim", help="trim the helicopter and print the trim table",

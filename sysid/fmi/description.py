@@ -202,6 +202,8 @@ def fmi2_model_description(desc: FmuDescription) -> str:
     out.append("  <ModelStructure>")
     for tag, items in (("Outputs", desc.outputs()), ("Derivatives", desc.derivatives()),
                        ("InitialUnknowns", desc.initial_unknowns())):
+        if not items:  # the schema refuses empty lists
+            continue
         out.append(f"    <{tag}>")
         out += [f'      <Unknown index="{i}"/>' for i in items]
         out.append(f"    </{tag}>")
