@@ -28,12 +28,12 @@ def test_fmu_is_also_a_source_fmu(truth_fmu):
     with zipfile.ZipFile(truth_fmu) as zf:
         names = set(zf.namelist())
         desc = ET.fromstring(zf.read("modelDescription.xml"))
-    for f in ("fmu_core.c", "fmi2_functions.c", "model.c", "fmu_model.h", "model.h",
-              "model_variables.h", "fmi2Functions.h", "fmi2FunctionTypes.h",
+    for f in ("fmu_core.c", "fmi2_functions.c", "model.c", "holds.c", "fmu_model.h", "model.h",
+              "holds.h", "model_variables.h", "fmi2Functions.h", "fmi2FunctionTypes.h",
               "fmi2TypesPlatform.h"):
         assert f"sources/{f}" in names
     listed = {f.get("name") for f in desc.iter("File")}
-    assert listed == {"fmu_core.c", "fmi2_functions.c", "model.c"}
+    assert listed == {"fmu_core.c", "fmi2_functions.c", "model.c", "holds.c"}
     assert "sources/buildDescription.xml" not in names  # FMI 2.0: none, never an FMI 3.0 one
     assert desc.find("ModelExchange") is not None and desc.find("CoSimulation") is not None
 

@@ -19,6 +19,7 @@
 #include <math.h>
 
 #include "fmu_model.h"
+#include "holds.h"
 
 #ifndef M_PI
 #define M_PI 3.14159265358979323846
@@ -105,6 +106,13 @@ FmuStatus model_initialize(ModelInstance *comp) {
     d->vt_sin2i = sin(2.0 * P(i_vt));
     d->vt_cos_i = cos(P(i_vt));
     d->vt_sin_i = sin(P(i_vt));
+    {
+        char message[256];
+        if (holds_initialize(r, &d->holds, message, sizeof message)) {
+            fmu_log(comp, FMU_ERROR, "logError", "%s", message);
+            return FMU_ERROR;
+        }
+    }
     return FMU_OK;
 }
 
@@ -149,10 +157,12 @@ static void evaluate(const ModelInstance *comp, const double *x, double *dx, Out
     /* ---------------- actuators (Eq. A1): first-order lags towards the geared stick ---- */
     {
         const double bw = P(omega_act);
-        dx[VR_theta_0] = bw * (gearing(P(col), P(gear_col_0), P(gear_col_100)) - x[VR_theta_0]);
-        dx[VR_theta_1s] = bw * (gearing(P(lon), P(gear_lon_0), P(gear_lon_100)) - x[VR_theta_1s]);
-        dx[VR_theta_1c] = bw * (gearing(P(lat), P(gear_lat_0), P(gear_lat_100)) - x[VR_theta_1c]);
-        dx[VR_theta_tr] = bw * (gearing(P(ped), P(gear_ped_0), P(gear_ped_100)) - x[VR_theta_tr]);
+        double c[HOLD_CONTROLS]; /* the inputs, or with the holds on what they apply */
+        holds_controls(r, &d->holds, x, c);
+        dx[VR_theta_0] = bw * (gearing(c[HOLD_COL], P(gear_col_0), P(gear_col_100)) - x[VR_theta_0]);
+        dx[VR_theta_1s] = bw * (gearing(c[HOLD_LON], P(gear_lon_0), P(gear_lon_100)) - x[VR_theta_1s]);
+        dx[VR_theta_1c] = bw * (gearing(c[HOLD_LAT], P(gear_lat_0), P(gear_lat_100)) - x[VR_theta_1c]);
+        dx[VR_theta_tr] = bw * (gearing(c[HOLD_PED], P(gear_ped_0), P(gear_ped_100)) - x[VR_theta_tr]);
     }
 
     /* ---------------- main rotor ------------------------------------------------------- */
@@ -423,9 +433,11 @@ void model_calculate_values(ModelInstance *comp) {
     P(T_tr) = o.T_tr;
     P(Q_mr) = o.Q_mr;
     P(power) = o.power;
+    holds_outputs(r, &comp->s.data.holds);
 }
 
 FmuStatus model_do_step(ModelInstance *comp, double h) {
+    holds_sample(comp->s.r, &comp->s.data.holds); /* sample-and-hold over the step */
     return fmu_integrate_rk4(comp, h, comp->s.r[VR_h_rk4]);
 }
 

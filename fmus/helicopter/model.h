@@ -6,6 +6,8 @@
 #ifndef HELICOPTER_MODEL_H
 #define HELICOPTER_MODEL_H
 
+#include "holds.h"
+
 typedef struct {
     /* rigid body */
     double inv_mass;
@@ -29,6 +31,8 @@ typedef struct {
     double ht_cl_max, ht_cos2i, ht_sin2i, ht_cos_i, ht_sin_i;
     double vt_cl_max, vt_cos2i, vt_sin2i, vt_cos_i, vt_sin_i;
     double half_rho;
+    /* stabilisation holds of the flight-test campaign (holds.c) */
+    HoldsData holds;
 } ModelData;
 
 #endif

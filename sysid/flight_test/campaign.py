@@ -18,8 +18,12 @@ Stabilisation (``Stabilisation``)
     ``conditional`` mode a loop acts only on the part of its error outside a dead band (the
     paper's "conditional" variant).
 
-What is recorded is what was applied: the sum of trim, excitation and stabilisation commands,
-clipped to 0-100 % of travel like the FMU's own saturation.
+What is recorded is what was applied: the pilot command (trim, excitation, off-axis activity)
+plus the stabilisation commands, clipped to 0-100 % of travel like the FMU's own saturation.
+By default the holds are computed inside the truth FMU (``fmus/helicopter/holds.c``,
+parameterised per manoeuvre by :func:`fmu_hold_parameters`), which steps through the whole
+pilot command with :meth:`sysid.truth.CoSimulation.run`; ``holds="python"`` computes them here
+at every step (:func:`_hold_commands`, the reference: the same bytes, about 5x slower).
 """
 
 from __future__ import annotations
@@ -75,6 +79,11 @@ FORWARD_FLIGHT_CROSSOVER = ((0.0, 1.0), (80.0, 1.0), (100.0, 1.5))
 
 #: Closed-loop damping ratio below which :func:`run_campaign` warns before flying.
 LIGHT_DAMPING = 0.1
+
+#: Where the stabilisation holds are computed: compiled into the truth FMU (its ``hold_*``
+#: parameters, ``fmus/helicopter/holds.c``) or in Python, the reference implementation, about
+#: 5x slower (docs/notes/2026-11-24-campaign-holds-in-the-fmu.md). Both give the same bytes.
+HOLDS = ("fmu", "python")
 
 
 def _schedule(points, airspeed_kt: float) -> float:
@@ -486,7 +495,8 @@ def _dead_band(value: float, width: float) -> float:
 # Execution
 # ---------------------------------------------------------------------------------------
 def run_campaign(campaign: Campaign, output: str | Path | None = None, *, quiet: bool = False,
-                 fmu=None, summaries: Sequence[Summary] = ()) -> xr.DataTree:
+                 fmu=None, summaries: Sequence[Summary] = (), holds: str = "fmu"
+                 ) -> xr.DataTree:
     """Fly every manoeuvre of ``campaign`` on the truth FMU; return (and write) the DataTree.
 
     With ``output`` the campaign is written to that netCDF file atomically, once, when every
@@ -500,6 +510,9 @@ def run_campaign(campaign: Campaign, output: str | Path | None = None, *, quiet:
     from higher layers, e.g. the cross-control coherence of
     :func:`sysid.spectral.cross_control.campaign_summary`.
 
+    ``holds`` (:data:`HOLDS`): where the stabilisation is computed, inside the truth FMU
+    (default) or in Python (the reference; same bytes, about 5x slower).
+
     Examples
     --------
     >>> campaign = default_campaign(0.0, seed=1).select("sweep_lon_*")
@@ -507,6 +520,8 @@ def run_campaign(campaign: Campaign, output: str | Path | None = None, *, quiet:
     >>> tree["maneuvers/sweep_lon_1"]["q"]               # deg/s, absolute, on ``time`` (s)
     """
     campaign.validate()
+    if holds not in HOLDS:
+        raise InputDataError(f"holds must be one of {HOLDS}, got {holds!r}")
     progress = Progress(quiet=quiet)
     model = truth.load_fmu(fmu)
     with progress.stage(f"trim and linearise at {campaign.flight_condition}"):
@@ -527,7 +542,7 @@ def run_campaign(campaign: Campaign, output: str | Path | None = None, *, quiet:
     sim = truth.CoSimulation(model, outputs=MEASUREMENTS)
     try:
         for m in campaign.maneuvers:
-            ds = fly(sim, trim, loops, m, campaign, progress=progress)
+            ds = fly(sim, trim, loops, m, campaign, progress=progress, holds=holds)
             tree[f"maneuvers/{m.name}"] = xr.DataTree(ds)
     except BaseException:
         if output is not None:
@@ -558,8 +573,16 @@ def _campaign_attrs(campaign: Campaign) -> dict:
 
 
 def fly(sim, trim, loops: dict[str, _Loop], maneuver: Maneuver, campaign: Campaign,
-        progress: Progress | None = None) -> xr.Dataset:
-    """Fly one manoeuvre from trim with the holds closed; return its time history."""
+        progress: Progress | None = None, *, holds: str = "fmu") -> xr.Dataset:
+    """Fly one manoeuvre from trim with the holds closed; return its time history.
+
+    ``holds`` (:data:`HOLDS`): ``"fmu"`` steps the truth FMU through the whole pilot command
+    with the holds computed inside it (:meth:`sysid.truth.CoSimulation.run`); ``"python"``
+    computes them here at every step (:func:`_hold_commands`), the reference the FMU's law
+    mirrors operation for operation.
+    """
+    if holds not in HOLDS:
+        raise InputDataError(f"holds must be one of {HOLDS}, got {holds!r}")
     progress = progress or Progress(quiet=True)
     dt = 1.0 / campaign.sample_rate
     index = campaign.maneuvers.index(maneuver) if maneuver in campaign.maneuvers else 0
@@ -568,14 +591,20 @@ def fly(sim, trim, loops: dict[str, _Loop], maneuver: Maneuver, campaign: Campai
     n = design.size
     stab = campaign.stabilisation
     random = np.random.default_rng(seed)
-    # Off-axis pilot activity: band-limited (first-order, 2 rad/s) seeded noise.
-    off_axis = np.zeros((n, len(CONTROLS)))
+    trim_u = np.array([trim.controls[c] for c in CONTROLS])
+    axis = CONTROLS.index(maneuver.axis)
+    # The pilot command: trim, the excitation on its axis and, with the holds on, seeded
+    # band-limited (first-order, 2 rad/s) off-axis activity on the other axes.
+    pilot = np.tile(trim_u, (n, 1))
+    pilot[:, axis] += design
     if stab.enabled and stab.secondary_perturbation > 0:
         alpha = math.exp(-2.0 * dt)
         white = random.standard_normal((n, len(CONTROLS))) * math.sqrt(1 - alpha**2)
         white[0] = 0.0  # the activity starts from trim
         off_axis = stab.secondary_perturbation * scipy.signal.lfilter([1.0], [1.0, -alpha],
                                                                       white, axis=0)
+        off_axis[:, axis] = 0.0
+        pilot += off_axis
     gusts = None
     if campaign.turbulence > 0:
         g = inputs.dryden_turbulence(n * dt, dt=dt, airspeed=campaign.airspeed_kt * KT,
@@ -583,35 +612,49 @@ def fly(sim, trim, loops: dict[str, _Loop], maneuver: Maneuver, campaign: Campai
         gusts = np.stack([g[c].values[:n] for c in ("u_gust", "v_gust", "w_gust")], axis=1)
         gusts = convert(gusts, "m/s", "ft/s")  # the stepping API takes gusts in ft/s
 
-    trim_u = np.array([trim.controls[c] for c in CONTROLS])
     trim_y = trim.channel_values()
-    axis = CONTROLS.index(maneuver.axis)
     sim.name = maneuver.name
-    y = sim.reset(trim)
-    names = list(sim.output_names)
-    col = {c: names.index(c) for c in MEASUREMENTS}
-    applied = np.empty((n, len(CONTROLS)))
-    measured = np.empty((n, len(MEASUREMENTS)))
-    fractions = {c: (stab.primary_fraction if c == maneuver.axis else 1.0) for c in CONTROLS}
-    for k in range(n):
-        command = trim_u.copy()
-        command[axis] += design[k]
-        if stab.enabled:
-            command += _hold_commands(y, col, trim_y, loops, fractions, stab)
-            command += np.where(np.arange(len(CONTROLS)) == axis, 0.0, off_axis[k])
-        command = np.clip(command, 0.0, 100.0)
-        applied[k] = command
-        measured[k] = [y[col[c]] for c in MEASUREMENTS]
-        _check_envelope(y, col, trim_y, campaign, maneuver, k * dt)
-        try:
-            y = sim.step(command, None if gusts is None else gusts[k], dt)
-        except SimulationDiverged as exc:
-            raise SimulationDiverged(
-                f"manoeuvre {maneuver.name!r} diverged at t = {k * dt:.2f} s: {exc}",
-                maneuver=maneuver.name, time=k * dt) from None
-        if not progress.quiet and k % max(n // 30, 1) == 0:
-            progress.stream.write(f"\r  {maneuver.name:<16} {100 * k / n:5.1f} %")
+    col = {c: list(sim.output_names).index(c) for c in MEASUREMENTS}
+
+    def report(fraction):
+        if not progress.quiet:
+            progress.stream.write(f"\r  {maneuver.name:<16} {100 * fraction:5.1f} %")
             progress.stream.flush()
+
+    if holds == "fmu":
+        sim.reset(trim, parameters=fmu_hold_parameters(loops, stab, trim_y, maneuver.axis))
+        flight = sim.run(pilot, gusts, dt=dt, progress=None if progress.quiet else report)
+        # What the step loop checks before each step, on the same samples and in its order.
+        _check_excursions(flight.outputs[:n], col, trim_y, campaign, maneuver, dt)
+        if flight.failure is not None:
+            k = flight.steps
+            raise SimulationDiverged(
+                f"manoeuvre {maneuver.name!r} diverged at t = {k * dt:.2f} s: {flight.failure}",
+                maneuver=maneuver.name, time=k * dt)
+        applied = flight.applied
+        measured = flight.outputs[:n][:, [col[c] for c in MEASUREMENTS]]
+    else:
+        y = sim.reset(trim)
+        applied = np.empty((n, len(CONTROLS)))
+        measured = np.empty((n, len(MEASUREMENTS)))
+        fractions = {c: (stab.primary_fraction if c == maneuver.axis else 1.0)
+                     for c in CONTROLS}
+        for k in range(n):
+            command = pilot[k]
+            if stab.enabled:
+                command = command + _hold_commands(y, col, trim_y, loops, fractions, stab)
+            command = np.clip(command, 0.0, 100.0)
+            applied[k] = command
+            measured[k] = [y[col[c]] for c in MEASUREMENTS]
+            _check_envelope(y, col, trim_y, campaign, maneuver, k * dt)
+            try:
+                y = sim.step(command, None if gusts is None else gusts[k], dt)
+            except SimulationDiverged as exc:
+                raise SimulationDiverged(
+                    f"manoeuvre {maneuver.name!r} diverged at t = {k * dt:.2f} s: {exc}",
+                    maneuver=maneuver.name, time=k * dt) from None
+            if k % max(n // 30, 1) == 0:
+                report(k / n)
     if not progress.quiet:
         progress.stream.write(f"\r  {maneuver.name:<16} 100.0 %\n")
     for j, c in enumerate(MEASUREMENTS):
@@ -619,6 +662,40 @@ def fly(sim, trim, loops: dict[str, _Loop], maneuver: Maneuver, campaign: Campai
         if sigma > 0:
             measured[:, j] += sigma * random.standard_normal(n)
     return _time_history(applied, measured, dt, maneuver, campaign, trim, sim, seed)
+
+
+def fmu_hold_parameters(loops: dict[str, _Loop], stab: Stabilisation, trim_y: dict,
+                        excited_axis: str) -> dict[str, float]:
+    """The hold law of :func:`_hold_commands` as parameters of the truth FMU (``hold_*``).
+
+    Gains already carry the weaker hold of ``excited_axis`` (``primary_fraction``), computed
+    here exactly as :func:`_hold_commands` computes them, so the FMU's law
+    (``fmus/helicopter/holds.c``) repeats the same floating-point operations. Trim
+    references and dead bands are in analysis units. Holds off: ``hold_enabled = 0``.
+    """
+    if not stab.enabled:
+        return {"hold_enabled": 0.0}
+    expected = {"lon": ("theta", "q"), "lat": ("phi", "p"), "col": ("hdot", None),
+                "ped": ("psi", "r")}
+    parameters = {"hold_enabled": 1.0, "hold_velocity": float(stab.velocity_hold)}
+    for control in CONTROLS:
+        loop = loops[control]
+        if (loop.error, loop.rate) != expected[control]:
+            raise InputDataError(
+                f"the FMU's {control} hold acts on {expected[control]}, the loop given acts on "
+                f"{(loop.error, loop.rate)}: fly it with holds='python'")
+        scale = stab.primary_fraction if control == excited_axis else 1.0
+        if loop.error == "hdot":
+            parameters[f"hold_k_error_{control}"] = scale * loop.k_error
+        else:
+            parameters[f"hold_k_error_{control}"] = loop.k_error * scale**2
+            parameters[f"hold_k_rate_{control}"] = scale * loop.k_rate
+        parameters[f"hold_derivative_{control}"] = loop.derivative
+    parameters.update({f"hold_trim_{c}": float(trim_y[c]) for c in STATES_6DOF})
+    band = stab.dead_band if stab.conditional else {}
+    parameters.update({f"hold_dead_band_{k}": float(band.get(k, 0.0))
+                       for k in ("attitude", "rate", "vertical_speed")})
+    return parameters
 
 
 def _hold_commands(y, col, trim_y, loops, fractions, stab) -> np.ndarray:
@@ -654,20 +731,43 @@ def _hold_commands(y, col, trim_y, loops, fractions, stab) -> np.ndarray:
     return out
 
 
+#: Excursion checks in the order the step loop makes them: (channel, limit attribute, unit).
+_EXCURSIONS = (("phi", "max_attitude_excursion", "deg"), ("theta", "max_attitude_excursion", "deg"),
+               ("u", "max_velocity_excursion", "ft/s"), ("v", "max_velocity_excursion", "ft/s"),
+               ("w", "max_velocity_excursion", "ft/s"))
+
+
+def _excursion(campaign, maneuver, t, check: int) -> SimulationDiverged:
+    """The error of check 0 (non-finite outputs) or ``_EXCURSIONS[check - 1]`` at ``t``."""
+    if check == 0:
+        what = "non-finite outputs"
+    else:
+        c, limit, unit = _EXCURSIONS[check - 1]
+        what = f"{c} left trim by more than {getattr(campaign, limit):g} {unit}"
+    return SimulationDiverged(f"manoeuvre {maneuver.name!r} diverged at t = {t:.2f} s: {what}",
+                              maneuver=maneuver.name, time=t)
+
+
 def _check_envelope(y, col, trim_y, campaign, maneuver, t) -> None:
+    """Raise SimulationDiverged if the outputs ``y`` of one step left trim too far."""
     if not np.all(np.isfinite(y)):
-        raise SimulationDiverged(f"manoeuvre {maneuver.name!r} diverged at t = {t:.2f} s: "
-                                 "non-finite outputs", maneuver=maneuver.name, time=t)
-    for c in ("phi", "theta"):
-        if abs(y[col[c]] - trim_y[c]) > campaign.max_attitude_excursion:
-            raise SimulationDiverged(
-                f"manoeuvre {maneuver.name!r} diverged at t = {t:.2f} s: {c} left trim by more "
-                f"than {campaign.max_attitude_excursion:g} deg", maneuver=maneuver.name, time=t)
-    for c in ("u", "v", "w"):
-        if abs(y[col[c]] - trim_y[c]) > campaign.max_velocity_excursion:
-            raise SimulationDiverged(
-                f"manoeuvre {maneuver.name!r} diverged at t = {t:.2f} s: {c} left trim by more "
-                f"than {campaign.max_velocity_excursion:g} ft/s", maneuver=maneuver.name, time=t)
+        raise _excursion(campaign, maneuver, t, 0)
+    for check, (c, limit, _) in enumerate(_EXCURSIONS, start=1):
+        if abs(y[col[c]] - trim_y[c]) > getattr(campaign, limit):
+            raise _excursion(campaign, maneuver, t, check)
+
+
+def _check_excursions(y, col, trim_y, campaign, maneuver, dt) -> None:
+    """:func:`_check_envelope` on every row of ``y`` (one per step, ``dt`` apart from 0),
+    vectorised: raises at the first row and check that fails."""
+    bad = [~np.isfinite(y).all(axis=1)]
+    bad += [np.abs(y[:, col[c]] - trim_y[c]) > getattr(campaign, limit)
+            for c, limit, _ in _EXCURSIONS]
+    bad = np.stack(bad, axis=1)
+    rows = np.flatnonzero(bad.any(axis=1))
+    if rows.size:
+        k = int(rows[0])
+        raise _excursion(campaign, maneuver, k * dt, int(np.argmax(bad[k])))
 
 
 def _time_history(applied, measured, dt, maneuver, campaign, trim, sim, seed) -> xr.Dataset:

@@ -600,11 +600,18 @@ def _simulate_gust(kind, tau, sigma, n, dt, g):
     lq = np.linalg.cholesky(q)
     w = g.standard_normal((n, m)) @ lq.T
     x = np.linalg.cholesky(p_ss) @ g.standard_normal(m)
-    out = np.empty(n)
-    for i in range(n):
-        out[i] = c[0] @ x
-        x = phi @ x + w[i]
-    return gain * out
+    # x[i+1] = phi x[i] + w[i], vectorised: in the Schur basis (phi = Z T Z^H, T upper
+    # triangular) each component is a first-order recursion, filtered last to first.
+    t, z_basis = scipy.linalg.schur(phi.astype(complex), output="complex")
+    v = w @ z_basis.conj()
+    z0 = z_basis.conj().T @ x
+    z = np.empty((n, m), dtype=complex)
+    for j in reversed(range(m)):
+        forcing = v[:-1, j] + z[:-1, j + 1:] @ t[j, j + 1:]
+        z[0, j] = z0[j]
+        z[1:, j] = scipy.signal.lfilter([1.0], [1.0, -t[j, j]], forcing,
+                                        zi=[t[j, j] * z0[j]])[0]
+    return gain * (z @ (c[0] @ z_basis)).real
 
 
 def dryden_turbulence(duration: float, *, dt: float, airspeed: float, altitude: float,
