@@ -492,6 +492,12 @@ class OutputErrorModel:
             hit = np.flatnonzero(self.out_idx == o)
             if len(hit):
                 S[:, hit[0], j] += x[:, c] if kind == "C" else rec.U[:, c]
+        Mf = self.structure.M[self.out_idx]  # output equations: C + M (A - K), D + M B
+        if np.any(Mf):
+            for j, kind in enumerate(self.kind):
+                if kind[0] in "AB" and np.any(Mf[:, kind[1]]):
+                    drive = x[:, kind[2]] if kind[0] == "A" else rec.U[:, kind[2]]
+                    S[:, :, j] += np.outer(drive, Mf[:, kind[1]])
         return S
 
     # -- interface for least_squares ---------------------------------------------------------

@@ -12,6 +12,21 @@ built-in 6-DoF structure (:func:`six_dof_structure`) ``A = A_kin(trim) + A_aero(
 (:func:`sysid.core.kinematics.rigid_body_terms`). :meth:`LinearStructure.to_dataset` writes the
 model Dataset of ``docs/data_model.md``; :func:`model_from_dataset` reads it back.
 
+Output equations. Outputs need not be states: besides the fixed and parametrised ``C, D``, an
+output may be a combination of state *derivatives* with the kinematic part removed,
+
+    y = C x + D u + M (x' - K x) = (C + M (A - K)) x + (D + M B) u ,
+
+where ``M`` (n_output x n_state) weights the derivative rows and ``K`` is the rigid-body
+kinematic and gravity part of ``A`` (:func:`sysid.core.kinematics.rigid_body_terms`). An
+accelerometer at the centre of gravity measures the specific force, i.e. ``ax = u' - K_u x``:
+the aerodynamic and control part of the ``u`` force row, so ``X_u ... X_ped`` act on both the
+``u`` row of A/B and the ``ax`` row of C/D through the *same* parameter. A sensor ahead of or
+beside the CG adds the lever-arm terms ``omega' x r`` (rows ``p q r`` of ``M``; the centripetal
+term ``omega x (omega x r)`` is quadratic in the rates and vanishes to first order about the
+zero trim rates of steady straight flight). ``M`` may not touch a delayed B entry (the output
+would need a delayed feed-through, which the model Dataset cannot hold).
+
 References
 ----------
 * Tischler, M. B. and Remple, R. K., *Aircraft and Rotorcraft System Identification*, 2nd ed.,
@@ -118,13 +133,20 @@ class LinearStructure:
     name, description : str
     attrs : mapping, optional
         Extra metadata (e.g. the trim attitudes used for the kinematic terms).
+    output_equation : array_like, optional
+        ``M``, shape (n_output, n_state): weights of the state-derivative rows in each output
+        (``y += M (x' - K x)``; module docstring). Default zeros.
+    kinematic : array_like, optional
+        ``K``, shape (n_state, n_state): the kinematic/gravity part of A that an output
+        equation removes (specific force excludes gravity). Default zeros.
     """
 
     def __init__(self, *, states: Sequence[str], inputs: Sequence[str],
                  outputs: Sequence[str] | None = None, A0=None, B0=None, C0=None, D0=None,
                  parameters: Iterable[Parameter] = (), trim_input: Mapping | None = None,
                  trim_output: Mapping | None = None, name: str = "user",
-                 description: str = "", attrs: Mapping | None = None):
+                 description: str = "", attrs: Mapping | None = None,
+                 output_equation=None, kinematic=None):
         self.states = tuple(states)
         self.inputs = tuple(inputs)
         self.outputs = tuple(outputs) if outputs is not None else self.states
@@ -143,6 +165,8 @@ class LinearStructure:
                     C0[i, self.states.index(out)] = 1.0
         self.C0 = _matrix(C0, (p, n), "C0", name)
         self.D0 = _matrix(D0, (p, m), "D0", name)
+        self.M = _matrix(output_equation, (p, n), "output_equation", name)
+        self.K = _matrix(kinematic, (n, n), "kinematic", name)
         self.parameters = tuple(parameters)
         self.name = name
         self.description = description
@@ -203,6 +227,32 @@ class LinearStructure:
                          for k, t in self._entries.items()}
         self.free_mask = np.array([p.free for p in self.parameters], dtype=bool)
         self.free_index = np.flatnonzero(self.free_mask)
+        self._check_output_delays()
+
+    def _check_output_delays(self) -> None:
+        """An output equation may not read a delayed B entry (module docstring)."""
+        used = np.any(self.M != 0, axis=0)  # state rows some output equation reads
+        if not used.any():
+            return
+        k, r, c = self._entries["B"]
+        has_b = self.B0 != 0
+        has_b[r, c] = True
+        for kk, rows, col in self._delay_entries:
+            bad = [self.states[i] for i in rows if used[i] and has_b[i, col]]
+            if bad:
+                outs = [self.outputs[o] for o in np.flatnonzero(self.M[:, self.states.index(
+                    bad[0])])]
+                raise InputDataError(
+                    f"structure {self.name!r}: delay {self.parameters[kk].name!r} acts on "
+                    f"B[{bad[0]},{self.inputs[col]}], which output(s) {outs} read through their "
+                    f"output equation; a delayed feed-through cannot be represented: delay "
+                    f"only the rows no output equation reads (e.g. the flapping or moment "
+                    f"rows), or use a per-entry delay")
+
+    @property
+    def has_output_equations(self) -> bool:
+        """True when some output reads state derivatives (``M != 0``)."""
+        return bool(np.any(self.M != 0))
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
@@ -322,14 +372,18 @@ class LinearStructure:
         kw = dict(states=self.states, inputs=self.inputs, outputs=self.outputs, A0=self.A0,
                   B0=self.B0, C0=self.C0, D0=self.D0, parameters=self.parameters,
                   trim_input=self.trim_input, trim_output=self.trim_output, name=self.name,
-                  description=self.description, attrs=self.attrs)
+                  description=self.description, attrs=self.attrs, output_equation=self.M,
+                  kinematic=self.K)
         kw.update(changes)
         return LinearStructure(**kw)
 
     # -- evaluation ----------------------------------------------------------------------
 
     def matrices(self, theta=None) -> tuple[np.ndarray, ...]:
-        """``(A, B, C, D, tau)`` as arrays for the free values ``theta`` (default: start)."""
+        """``(A, B, C, D, tau)`` as arrays for the free values ``theta`` (default: start).
+
+        ``C`` and ``D`` include the output equations: ``C + M (A - K)``, ``D + M B``.
+        """
         vals = self.values(theta)
         mats = {"A": self.A0.copy(), "B": self.B0.copy(), "C": self.C0.copy(),
                 "D": self.D0.copy()}
@@ -339,6 +393,9 @@ class LinearStructure:
         tau = np.zeros_like(self.B0)
         for k, r, c in self._delay_entries:
             tau[r, c] = vals[k]
+        if self.has_output_equations:
+            mats["C"] += self.M @ (mats["A"] - self.K)
+            mats["D"] += self.M @ mats["B"]
         return mats["A"], mats["B"], mats["C"], mats["D"], tau
 
     def frequency_response(self, omega, theta=None) -> xr.DataArray:
@@ -372,7 +429,9 @@ class LinearStructure:
         - ``dT/dA_ij = [C R]_oi [R B~]_jk`` with ``R = (sI - A)^-1``,
         - ``dT/dB_ik = [C R]_oi exp(-s tau_ik)``,
         - ``dT/dtau = -s sum_i [C R]_oi B~_ik`` over the B entries the delay acts on,
-        - ``dT/dC_oj = [R B~]_jk``, ``dT/dD_ok = 1``.
+        - ``dT/dC_oj = [R B~]_jk``, ``dT/dD_ok = 1``;
+        - an output equation ``M`` adds ``M_oi [R B~]_jk`` to ``dT/dA_ij`` and ``M_oi`` to
+          ``dT/dB_ik`` (``C + M (A - K)`` and ``D + M B`` depend on them).
 
         Returns
         -------
@@ -392,12 +451,13 @@ class LinearStructure:
         if not jacobian:
             return T
         dT = np.zeros((len(s), len(self.parameters)), dtype=complex)
+        Mo = self.M[out_idx]  # (n_pt, n): output-equation weights of each point's output
         k, r, c = self._entries["A"]
         if len(k):
-            dT[:, k] = CR[:, r] * X[:, c]
+            dT[:, k] = (CR[:, r] + Mo[:, r]) * X[:, c]
         k, r, c = self._entries["B"]
         if len(k):
-            dT[:, k] = CR[:, r] * E[:, r, c] * (in_idx[:, None] == c[None, :])
+            dT[:, k] = (CR[:, r] * E[:, r, c] + Mo[:, r]) * (in_idx[:, None] == c[None, :])
         k, r, c = self._entries["C"]
         if len(k):
             dT[:, k] = X[:, c] * (out_idx[:, None] == r[None, :])
@@ -484,6 +544,13 @@ class LinearStructure:
             coords={"state": st, "state_dot": st, "input": inp, "output": out,
                     "parameter": names, "parameter_j": names},
         )
+        if self.has_output_equations:
+            ds["output_equation"] = (("output", "state_dot"), self.M.copy(), {
+                "long_name": "weights of the state-derivative rows in each output: "
+                             "C = C_fixed + M (A - K), D = D_fixed + M B"})
+            ds["kinematic"] = (("state_dot", "state"), self.K.copy(), {
+                "long_name": "kinematic and gravity part K of A removed by the output "
+                             "equations (specific force excludes gravity)"})
         base_attrs = {"structure": self.name, "structure_description": self.description,
                       "method": "structure"}
         base_attrs.update({k: v for k, v in self.attrs.items()
@@ -606,9 +673,16 @@ def model_from_dataset(model: xr.Dataset) -> tuple[LinearStructure, np.ndarray]:
                 float(model["value"].values[k]), bool(model["free"].values[k]),
                 float(lower[k]) if lower is not None else -math.inf,
                 float(upper[k]) if upper is not None else math.inf))
+    M = K = None
+    if "output_equation" in model:
+        M = model["output_equation"].sel(output=outputs, state_dot=states).values.astype(float)
+        K = model["kinematic"].sel(state_dot=states, state=states).values.astype(float)
     probe = LinearStructure(states=states, inputs=inputs, outputs=outputs, parameters=params)
     vals = probe.values()
     base = {"A": A.copy(), "B": B.copy(), "C": C.copy(), "D": D.copy()}
+    if M is not None:  # the output equations' share of C and D comes back from A and B
+        base["C"] -= M @ (A - K)
+        base["D"] -= M @ B
     for key, (k, r, c) in probe._entries.items():
         if len(k):
             base[key][r, c] -= vals[k]
@@ -626,7 +700,7 @@ def model_from_dataset(model: xr.Dataset) -> tuple[LinearStructure, np.ndarray]:
                                 trim_input=trim_in, trim_output=trim_out,
                                 name=str(model.attrs.get("structure", "from_dataset")),
                                 description=str(model.attrs.get("structure_description", "")),
-                                attrs=attrs)
+                                attrs=attrs, output_equation=M, kinematic=K)
     return structure, vals[structure.free_index]
 
 

@@ -29,7 +29,7 @@ from sysid.models.structure import (DELAY_BOUNDS, LinearStructure, Parameter, en
                                     parse_delay_entry)
 
 __all__ = ["structure_from_dict", "load_structure", "structure_path", "builtin_structures",
-           "STRUCTURES_DIR"]
+           "STRUCTURES_DIR", "ACCELEROMETER_ROWS"]
 
 #: Folder of the built-in TOML structures.
 STRUCTURES_DIR = Path(__file__).resolve().parent / "structures"
@@ -82,6 +82,13 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
         [C]                                # added to the default C (identity selection)
         [D]
 
+        [output_equations]                 # outputs that are not states (optional)
+        h_dot = { state = { w = -1.0 } }   # y = sum c x + sum m (x' - K x) + sum d u; tables
+                                           # state, derivative, input (fixed coefficients)
+
+        [sensors]                          # accelerometer position from the CG, body axes, ft
+        accelerometer = [0.0, 0.0, 0.0]    # x fwd, y right, z down; default the CG
+
         [delays]                           # per B entry ("row,input") or per input ("input")
         tau_L_lon = { entry = "p,lon", value = 0.1 }             # bounds default 0 .. 0.3 s
         tau_L_lat = { entry = "p,lat", value = 0.1, keep = true }  # never removed by reduction
@@ -90,6 +97,13 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
     A/B entries on the 6-DoF force rows get derivative names (``"q,u"`` -> ``M_u``); other
     entries are named ``A[row,column]``. Entries not listed are fixed at the fixed part
     (kinematics for A, zero otherwise).
+
+    Outputs that are not states need an output equation: ``ax ay az`` have a built-in one,
+    the body-axis specific force at the accelerometer (ft/s^2, gravity excluded): the
+    aerodynamic and control part of the ``u v w`` force rows (``x' - K x`` with ``K`` the
+    ``[kinematics]`` terms), plus the lever-arm terms ``omega' x r`` of ``[sensors]
+    accelerometer`` (:data:`ACCELEROMETER_ROWS`; :mod:`sysid.models.structure`). Any other
+    is given in ``[output_equations]``.
 
     Parameters
     ----------
@@ -114,12 +128,13 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
     outputs = _names(spec.get("outputs", states), f"structure {source}: outputs")
     name = _text(spec.get("name", Path(source).stem), f"structure {source}: name")
     _text(spec.get("description", ""), f"structure {source}: description")
-    for table in ("kinematics", "trim", "A", "B", "C", "D", "delays"):
+    for table in ("kinematics", "trim", "A", "B", "C", "D", "delays", "output_equations",
+                  "sensors"):
         if table in spec and not isinstance(spec[table], Mapping):
             raise InputDataError(f"structure {source}: [{table}] must be a table, got "
                                  f"{spec[table]!r}")
     known_tables = {"name", "description", "states", "inputs", "outputs", "kinematics", "trim",
-                    "frequency_range",
+                    "frequency_range", "output_equations", "sensors",
                     "A", "B", "C", "D", "delays"}
     extra = set(spec) - known_tables
     if extra:
@@ -200,8 +215,11 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
                                 _number(item.get("lower", DELAY_BOUNDS[0]), f"{where}: lower"),
                                 _number(item.get("upper", DELAY_BOUNDS[1]), f"{where}: upper"),
                                 _flag(item.get("keep", False), f"{where}: keep")))
+    K = A0.copy()  # the kinematic part: all of the fixed A a [kinematics] table builds
+    C0, D0, M = _output_equations(spec, states, inputs, outputs, source)
     try:
         return LinearStructure(states=states, inputs=inputs, outputs=outputs, A0=A0,
+                               C0=C0, D0=D0, output_equation=M, kinematic=K,
                                parameters=params,
                                trim_input={k: v for k, v in trim_all.items() if k in inputs},
                                trim_output={k: v for k, v in trim_all.items()
@@ -211,6 +229,69 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
     except (InputDataError, ValueError) as exc:
         # e.g. a parameter on a row or column the structure does not have
         raise InputDataError(f"structure {source}: {exc}") from None
+
+
+#: Built-in output equations: accelerometer output -> its force row (specific force at the CG).
+ACCELEROMETER_ROWS = {"ax": "u", "ay": "v", "az": "w"}
+_RAD = math.pi / 180.0
+
+
+def _output_equations(spec: Mapping, states, inputs, outputs, source: str):
+    """``C0, D0, M`` of the outputs: identity selection of the states, the built-in
+    accelerometer equations, the ``[output_equations]`` table and the lever arm of ``[sensors]``.
+
+    Lever arm (sensor at ``r = (x, y, z)`` ft from the CG): ``a_s = a_cg + omega' x r +
+    omega x (omega x r)``; about zero trim rates the last term is of second order, so
+    ``ax += z q' - y r'``, ``ay += x r' - z p'``, ``az += y p' - x q'`` (p', q', r' in
+    deg/s^2, hence the factor pi/180).
+    """
+    n, m, p = len(states), len(inputs), len(outputs)
+    C0, D0, M = np.zeros((p, n)), np.zeros((p, m)), np.zeros((p, n))
+    given = dict(spec.get("output_equations", {}))
+    unknown = set(given) - set(outputs)
+    if unknown:
+        raise InputDataError(f"structure {source}: [output_equations] {sorted(unknown)} are "
+                             f"not outputs ({list(outputs)})")
+    sensors = dict(spec.get("sensors", {}))
+    _check_fields(sensors, {"accelerometer"}, f"structure {source}: [sensors]")
+    arm = sensors.get("accelerometer", [0.0, 0.0, 0.0])
+    if not isinstance(arm, list) or len(arm) != 3:
+        raise InputDataError(f"structure {source}: [sensors] accelerometer = {arm!r}: expected "
+                             f"[x, y, z] in ft (body axes, from the CG)")
+    x, y, z = (_number(v, f"structure {source}: [sensors] accelerometer") for v in arm)
+    lever = {"ax": {"q": z, "r": -y}, "ay": {"r": x, "p": -z}, "az": {"p": y, "q": -x}}
+    for o, out in enumerate(outputs):
+        where = f"structure {source}: output {out!r}"
+        if out in given:
+            eq = given[out]
+            if not isinstance(eq, Mapping):
+                raise InputDataError(f"{where}: [output_equations] {out} must be a table with "
+                                     f"'state', 'derivative' and/or 'input' tables")
+            _check_fields(eq, {"state", "derivative", "input"}, where)
+            for part, target, names in (("state", C0, states), ("derivative", M, states),
+                                        ("input", D0, inputs)):
+                for key, val in dict(eq.get(part, {})).items():
+                    if key not in names:
+                        raise InputDataError(f"{where}: {part} {key!r} is not one of "
+                                             f"{list(names)}")
+                    target[o, list(names).index(key)] += _number(val, f"{where}: {part} {key}")
+        elif out in states:
+            C0[o, states.index(out)] = 1.0
+        elif out in ACCELEROMETER_ROWS:
+            need = [ACCELEROMETER_ROWS[out]] + [r for r, d in lever[out].items() if d]
+            missing = [s for s in need if s not in states]
+            if missing:
+                raise InputDataError(f"{where}: the accelerometer equation needs the states "
+                                     f"{missing}")
+            M[o, states.index(ACCELEROMETER_ROWS[out])] = 1.0
+            for rate, dist in lever[out].items():
+                if dist:
+                    M[o, states.index(rate)] += dist * _RAD
+        else:
+            raise InputDataError(f"{where} is not a state and has no output equation (built-in: "
+                                 f"{sorted(ACCELEROMETER_ROWS)}; others go in "
+                                 f"[output_equations])")
+    return C0, D0, M
 
 
 def _number(value, where: str, expected: str = "a number") -> float:
