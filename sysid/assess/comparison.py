@@ -4,8 +4,11 @@ The paper's Tables 2-3 list, per derivative, the frequency-domain and the time-d
 estimates with their normalised Cramer-Rao bounds. :func:`derivative_table` builds that table
 for any set of model Datasets (``docs/data_model.md``) plus the truth model's quasi-steady
 linearisation, and :func:`sign_agreement` checks the paper's conclusion 8 (consistent signs
-of the dominant derivatives). :func:`compare_models` builds a campaign's ``/comparison``
-group from its ``/models`` and ``/linearization``.
+of the dominant derivatives). :func:`fidelity_scoreboard` puts each estimate's error against
+the truth in units of its own bound and flags the errors beyond
+:data:`~sysid.core.guidelines.BIAS_BOUNDS_MAX` bounds: a bias the noise cannot explain, i.e. a
+structure or data problem. :func:`compare_models` builds a campaign's ``/comparison`` group
+(the table and the scoreboard) from its ``/models`` and ``/linearization``.
 """
 
 from __future__ import annotations
@@ -17,9 +20,11 @@ import numpy as np
 import xarray as xr
 
 from sysid.core.errors import InputDataError
+from sysid.core.guidelines import BIAS_BOUNDS_MAX
 from sysid.core.util import atomic_path
 from sysid.data.campaign import CampaignData
-from sysid.models import parameter_values
+from sysid.models import model_from_dataset, parameter_values
+from sysid.truth.linearize import truth_for_structure
 
 #: The derivatives that dominate the hover dynamics (damping and on-axis control power).
 DOMINANT = ("Z_w", "M_q", "L_p", "N_r", "M_lon", "L_lat", "Z_col", "N_ped")
@@ -67,14 +72,108 @@ def derivative_table(models: Mapping[str, xr.Dataset], truth: xr.Dataset | None 
     )
 
 
+#: What a scoreboard flag means (shown beside it in the report and by ``sysid compare``).
+BIAS_MEANING = "bias beyond noise: a structure or data problem, not noise"
+
+
+def _bound(model: xr.Dataset, k: int) -> tuple[float, float, str]:
+    """``(plain bound, bound used, kind)`` of parameter ``k``: the bound corrected for coloured
+    residuals where the model carries a finite one, else the plain Cramer-Rao bound."""
+    plain = float(model["cramer_rao"].values[k])
+    if "cramer_rao_corrected" in model:
+        corrected = float(model["cramer_rao_corrected"].values[k])
+        if np.isfinite(corrected) and corrected > 0:
+            return plain, corrected, "corrected"
+    method = str(model.attrs.get("method", ""))
+    return plain, plain, ("cifer" if method == "frequency_domain" else "white")
+
+
+def fidelity_scoreboard(models: Mapping[str, xr.Dataset], truth: xr.Dataset | None = None, *,
+                        threshold: float = BIAS_BOUNDS_MAX) -> xr.Dataset:
+    """Each identified parameter's error against the truth in units of its own bound.
+
+    For every parameter free in any model and every model (method): the estimate, its bound
+    ``sigma`` (one standard deviation: the time-domain bound corrected for coloured
+    residuals, ``cramer_rao_corrected``, where the model carries it, else the plain
+    Cramer-Rao bound; the frequency-domain bound in the CIFER convention, docs/methods.md,
+    "Accuracy"), the truth's quasi-steady value, the error ``value - truth`` and
+
+        z = |value - truth| / sigma,     flag = z > threshold (default 3)
+
+    A flagged estimate is biased beyond what the noise explains (:data:`BIAS_MEANING`). NaN
+    where a model does not estimate the parameter or the truth has no value (delays).
+
+    Returns a Dataset over ``parameter`` and ``model`` with ``value``, ``bound``,
+    ``cramer_rao`` (the plain bound), ``bound_kind`` (``"corrected"``, ``"white"`` or
+    ``"cifer"``), ``error``, ``error_in_bounds``, ``bias_flag`` and ``truth`` (parameter);
+    attribute ``bias_bounds_max`` (the threshold).
+
+    Examples
+    --------
+    >>> board = fidelity_scoreboard(data.models(), data.quasi_steady())    # doctest: +SKIP
+    >>> board["bias_flag"].sel(model="time_domain")                       # doctest: +SKIP
+    """
+    table = derivative_table(models, truth)
+    names = [str(n) for n in table.parameter.values]
+    methods = list(models)
+    shape = (len(names), len(methods))
+    bound = np.full(shape, np.nan)
+    plain = np.full(shape, np.nan)
+    kind = np.full(shape, "", dtype=object)
+    for j, model in enumerate(models.values()):
+        present = {str(p): k for k, p in enumerate(model.parameter.values)}
+        for i, name in enumerate(names):
+            k = present.get(name)
+            if k is None or not bool(model["free"].values[k]):
+                continue
+            plain[i, j], bound[i, j], kind[i, j] = _bound(model, k)
+    error = table["value"] - table["truth"]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.abs(error.values) / bound
+    dims = ("parameter", "model")
+    return xr.Dataset(
+        {
+            "value": table["value"],
+            "bound": (dims, bound, {"long_name": "bound used (one standard deviation)"}),
+            "cramer_rao": (dims, plain, {"long_name": "plain Cramer-Rao bound"}),
+            "bound_kind": (dims, kind.astype(str),
+                           {"long_name": "corrected (coloured residuals), white (time "
+                                         "domain, white-noise) or cifer (frequency domain)"}),
+            "error": error.assign_attrs(long_name="estimate minus truth"),
+            "error_in_bounds": (dims, z, {"long_name": "|estimate - truth| / bound"}),
+            "bias_flag": (dims, np.isfinite(z) & (z > threshold),
+                          {"long_name": f"error beyond {threshold:g} bounds: {BIAS_MEANING}"}),
+            "truth": table["truth"],
+        },
+        coords={"parameter": names, "model": methods},
+        attrs={"long_name": "fidelity scoreboard: error against the truth in bounds",
+               "bias_bounds_max": float(threshold), "bias_meaning": BIAS_MEANING},
+    )
+
+
 def compare_models(data: CampaignData) -> xr.Dataset:
     """The ``/comparison`` Dataset of a campaign: :func:`derivative_table` of every
-    ``/models/<method>`` beside the truth linearisation ``/linearization`` (when present)."""
+    ``/models/<method>`` beside the truth linearisation ``/linearization`` (when present),
+    with the :func:`fidelity_scoreboard` variables ``bound``, ``bound_kind``,
+    ``error_in_bounds`` and ``bias_flag``."""
     models = data.models()
     if not models:
         raise InputDataError(f"{data.source} has no identified models (/models/<method>); "
                              "run 'sysid identify' and/or 'sysid identify-time' first")
-    return derivative_table(models, data.quasi_steady())
+    truth = data.quasi_steady()
+    first = next(iter(models.values()))
+    if (truth is not None and "linearization_full" in data.tree.children
+            and set(map(str, first["A"].state.values)) != set(map(str, truth["A"].state.values))):
+        # a higher-order structure (e.g. flapping): the truth reduced to its states
+        truth = truth_for_structure(data.tree["linearization_full"].to_dataset(),
+                                    model_from_dataset(first)[0])
+    table = derivative_table(models, truth)
+    board = fidelity_scoreboard(models, truth)
+    for name in ("bound", "bound_kind", "error_in_bounds", "bias_flag"):
+        table[name] = board[name]
+    table.attrs.update(bias_bounds_max=board.attrs["bias_bounds_max"],
+                       bias_meaning=BIAS_MEANING)
+    return table
 
 
 def write_table_csv(table: xr.Dataset, path: str | Path) -> Path:
@@ -123,4 +222,36 @@ def format_table(table: xr.Dataset) -> str:
         truth = float(table["truth"].sel(parameter=name))
         row += f"{truth:>12.5g}" if np.isfinite(truth) else f"{'-':>12}"
         lines.append(row)
+    return "\n".join(lines)
+
+
+def format_scoreboard(board: xr.Dataset) -> str:
+    """The fidelity scoreboard as text: per parameter and method the estimate, its bound,
+    the truth, the error in bounds and a flag beyond the threshold (:func:`fidelity_scoreboard`
+    or a ``/comparison`` Dataset that carries its variables)."""
+    threshold = float(board.attrs.get("bias_bounds_max", BIAS_BOUNDS_MAX))
+    methods = [str(m) for m in board.model.values]
+    lines = [f"fidelity scoreboard: error against the truth in bounds (flag '!' beyond "
+             f"{threshold:g}: {BIAS_MEANING})",
+             f"{'parameter':<11}{'truth':>11}" + "".join(
+                 f"{m[:22]:>40}" for m in methods),
+             f"{'':<11}{'':>11}" + "".join(
+                 f"{'value':>11}{'bound':>10}{'kind':>10}{'err/bd':>8}{'':>1}" for _ in methods)]
+    flagged = {m: 0 for m in methods}
+    for name in board.parameter.values:
+        truth = float(board["truth"].sel(parameter=name))
+        row = f"{str(name):<11}" + (f"{truth:>11.4g}" if np.isfinite(truth) else f"{'-':>11}")
+        for m in methods:
+            cell = board.sel(parameter=name, model=m)
+            value, bound = float(cell["value"]), float(cell["bound"])
+            if not np.isfinite(value):
+                row += f"{'-':>11}{'':>10}{'':>10}{'':>8} "
+                continue
+            z = float(cell["error_in_bounds"])
+            flag = bool(cell["bias_flag"])
+            flagged[m] += flag
+            row += (f"{value:>11.4g}{bound:>10.3g}{str(cell['bound_kind'].values):>10}"
+                    + (f"{z:>8.1f}" if np.isfinite(z) else f"{'-':>8}") + ("!" if flag else " "))
+        lines.append(row)
+    lines.append("flagged: " + ", ".join(f"{m} {n}" for m, n in flagged.items()))
     return "\n".join(lines)

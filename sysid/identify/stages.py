@@ -3,7 +3,13 @@
 The two fits of the study read what a campaign holds (:class:`sysid.data.campaign.
 CampaignData`): the frequency-domain fit its composite responses ``/frequency_response``, the
 time-domain fit its manoeuvres; both take the trim from the ``trim_<channel>`` attributes and
-their start values from the campaign (:func:`start_values`). They return the fit result,
+their start values from the campaign (:func:`start_values`). On data that carry the states,
+both start from the leakage-free responses (docs/methods.md, "Leakage-free conditioning"): the
+frequency-domain fit consumes ``/frequency_response`` (leakage-free by default) and, without a
+truth linearisation, starts from its equation error; the time-domain fit starts from the
+frequency-domain model, else the linearisation, else the same equation error. Each model
+records which responses its start came from (attributes ``start_source`` and
+``frequency_response_transient_states``). They return the fit result,
 whose ``model`` Dataset (``docs/data_model.md``) the caller stores as ``/models/<method>``
 (the ``sysid identify`` commands and :func:`sysid.pipeline.study.run_study` do).
 
@@ -27,9 +33,10 @@ from sysid.core.guidelines import COHERENCE_MIN
 from sysid.core.util import Progress
 from sysid.data.campaign import CampaignData
 from sysid.identify.frequency_domain import (N_POINTS, FrequencyFitResult,
-                                             identify_frequency_domain)
+                                             equation_error_start, identify_frequency_domain)
 from sysid.identify.time_domain import TimeFitResult, identify_time_domain
 from sysid.models import LinearStructure, load_structure
+from sysid.truth.linearize import truth_for_structure
 
 __all__ = ["FREQUENCY_DOMAIN_STARTS", "TIME_DOMAIN_STARTS", "start_values",
            "fit_frequency_domain", "fit_time_domain"]
@@ -39,8 +46,10 @@ __all__ = ["FREQUENCY_DOMAIN_STARTS", "TIME_DOMAIN_STARTS", "start_values",
 #: frequency-domain equation error (``equation-error``), the structure's own values.
 FREQUENCY_DOMAIN_STARTS = ("auto", "linearization", "equation-error", "structure")
 #: Start-value choices of the time-domain fit: ``auto`` takes ``/models/frequency_domain``,
-#: else ``/linearization``, else the structure's values; the others insist on one of them.
-TIME_DOMAIN_STARTS = ("auto", "frequency_domain", "linearization", "structure")
+#: else ``/linearization``, else the frequency-domain equation error of
+#: ``/frequency_response``, else the structure's values; the others insist on one of them.
+TIME_DOMAIN_STARTS = ("auto", "frequency_domain", "linearization", "equation-error",
+                      "structure")
 
 
 def start_values(data: CampaignData, structure: LinearStructure, kind: str, *,
@@ -70,15 +79,56 @@ def start_values(data: CampaignData, structure: LinearStructure, kind: str, *,
                                  f"run 'sysid identify' first or choose another --start")
     if kind in ("auto", "linearization"):
         lin = data.linearization(structure.states)
+        if lin is None and "linearization_full" in data.tree.children:
+            lin = data.tree["linearization_full"].to_dataset()  # e.g. for flapping states
         if lin is not None:
             progress.message(f"[sysid] {label}: start values from /linearization")
+            have = {str(s) for s in lin["A"].state.values}
+            outs = {str(o) for o in lin["C"].output.values}
+            if have != set(structure.states) and outs >= set(structure.outputs):
+                # a higher-order structure (e.g. flapping states): the truth reduced to its
+                # states, outputs and normalisation (truth_for_structure)
+                return truth_for_structure(lin, structure)
             return lin
         if kind == "linearization":
             raise InputDataError(f"campaign {data.source} has no /linearization model over "
                                  f"the states {list(structure.states)}")
     if fit == "frequency_domain" and kind == "structure":
         return structure.theta0
+    if fit == "time_domain" and kind in ("auto", "equation-error"):
+        fr = data.frequency_response()
+        if fr is not None:
+            states = list(fr.attrs.get("transient_states", []))
+            progress.message(f"[sysid] {label}: start values from the equation error of "
+                             f"/frequency_response (leakage conditioning: "
+                             f"{', '.join(states) if states else 'off'})")
+            return equation_error_start(fr, structure)
+        if kind == "equation-error":
+            raise InputDataError(f"campaign {data.source} has no /frequency_response for "
+                                 f"equation-error start values; run 'sysid frequency-response' "
+                                 f"first or choose another --start")
     return None
+
+
+def _start_source(data: CampaignData, start, fit: str) -> str:
+    """Where a fit's start values came from, for the model's ``start_source`` attribute."""
+    if isinstance(start, xr.Dataset):
+        method = start.attrs.get("method")
+        return f"/models/{method}" if method in ("frequency_domain", "time_domain") \
+            else "/linearization"
+    if start is None:
+        return ("equation error of /frequency_response" if fit == "frequency_domain"
+                else "structure")
+    return ("equation error of /frequency_response" if fit == "time_domain"
+            and data.frequency_response() is not None else "structure")
+
+
+def _record_responses(model: xr.Dataset, data: CampaignData) -> None:
+    """Record in ``model`` which leakage conditioning the campaign's responses had."""
+    fr = data.frequency_response()
+    if fr is not None:
+        model.attrs["frequency_response_transient_states"] = ",".join(
+            str(c) for c in fr.attrs.get("transient_states", []))
 
 
 def fit_frequency_domain(data: CampaignData, *, structure: str = "hover_6dof",
@@ -100,13 +150,15 @@ def fit_frequency_domain(data: CampaignData, *, structure: str = "hover_6dof",
         raise InputDataError(f"campaign {data.source} has no /frequency_response group; "
                              f"compute the composite frequency responses first")
     loaded = load_structure(structure, trim=data.trim())
+    begin = start_values(data, loaded, start, fit="frequency_domain", progress=progress)
     result = identify_frequency_domain(
-        fr, loaded, pairs=pairs,
-        start=start_values(data, loaded, start, fit="frequency_domain", progress=progress),
+        fr, loaded, pairs=pairs, start=begin,
         frequency_range=frequency_range, fallback_coherence_min=fallback_coherence_min,
         coherence_min=coherence_min, n_points=n_points, reduce=reduce, seed=seed,
         progress=progress)
     result.model.attrs["campaign_file"] = data.source
+    result.model.attrs["start_source"] = _start_source(data, begin, "frequency_domain")
+    _record_responses(result.model, data)
     return result
 
 
@@ -124,10 +176,12 @@ def fit_time_domain(data: CampaignData, *, maneuvers: str = "*",
     """
     records = list(data.maneuvers(maneuvers).values())
     loaded = load_structure(structure, trim=data.trim(maneuvers))
+    begin = start_values(data, loaded, start, fit="time_domain", progress=progress)
     result = identify_time_domain(
-        records, loaded,
-        start=start_values(data, loaded, start, fit="time_domain", progress=progress),
+        records, loaded, start=begin,
         outputs=outputs, biases=biases, initial_state=initial_state, reduce=reduce,
         progress=progress)
     result.model.attrs["campaign_file"] = data.source
+    result.model.attrs["start_source"] = _start_source(data, begin, "time_domain")
+    _record_responses(result.model, data)
     return result

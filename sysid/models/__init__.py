@@ -8,7 +8,8 @@ re-exported here: ``from sysid.models import simulate``.
 """
 
 from sysid.models.dataset import delays_summary, parameter_values
-from sysid.models.lti import frequency_response, model_matrices, statespace, transfer_matrix
+from sysid.models.lti import (frequency_response, model_matrices, residualize_model, statespace,
+                              transfer_matrix)
 from sysid.models.simulation import discretize, propagate, simulate
 from sysid.models.structure import (ALL_ROWS, DELAY_BOUNDS, FORCE_STATES, LinearStructure,
                                     Parameter, model_from_dataset, six_dof_structure,
@@ -30,6 +31,7 @@ __all__ = [
     "frequency_response",
     "transfer_matrix",
     "statespace",
+    "residualize_model",
     "discretize",
     "propagate",
     "simulate",

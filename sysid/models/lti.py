@@ -23,7 +23,8 @@ import xarray as xr
 
 from sysid.core.errors import InputDataError
 
-__all__ = ["model_matrices", "transfer_matrix", "frequency_response", "statespace"]
+__all__ = ["model_matrices", "transfer_matrix", "frequency_response", "statespace",
+           "residualize_model"]
 
 
 def model_matrices(model: xr.Dataset) -> tuple[np.ndarray, ...]:
@@ -118,3 +119,55 @@ def statespace(model: xr.Dataset, *, pade_order: int | None = None):
     Ca = np.hstack([C, np.zeros((C.shape[0], q_tot))])
     return control.ss(Aa, Ba, Ca, D, inputs=inputs, outputs=outputs,
                       states=states + extra_states, name=str(model.attrs.get("structure", "model")))
+
+
+def residualize_model(model: xr.Dataset, states, outputs=None) -> xr.Dataset:
+    """The model with every state outside ``states`` residualised (quasi-steady, ``z' = 0``).
+
+    With the kept states ``x`` and the residualised ``z``,
+    ``A_r = A_xx - A_xz A_zz^-1 A_zx``, ``B_r = B_x - A_xz A_zz^-1 B_z``,
+    ``C_r = C_x - C_z A_zz^-1 A_zx``, ``D_r = D - C_z A_zz^-1 B_z``: exact at zero frequency
+    and accurate well below the residualised modes. ``outputs`` selects output rows
+    (default all). Delays are not carried (a linearisation has none).
+
+    References
+    ----------
+    * Kokotovic, P. V., Khalil, H. K. and O'Reilly, J., *Singular Perturbation Methods in
+      Control*, Academic Press, 1986, ch. 1 (quasi-steady reduction).
+    """
+    A, B, C, D, _ = model_matrices(model)
+    names = [str(s) for s in model["A"].state.values]
+    states = [str(s) for s in states]
+    missing = [s for s in states if s not in names]
+    if missing:
+        raise InputDataError(f"residualize_model: the model has no states {missing} "
+                             f"(states: {names})")
+    out_all = [str(o) for o in model["C"].output.values]
+    outputs = out_all if outputs is None else [str(o) for o in outputs]
+    absent = [o for o in outputs if o not in out_all]
+    if absent:
+        raise InputDataError(f"residualize_model: the model has no outputs {absent} "
+                             f"(outputs: {out_all})")
+    keep = [names.index(s) for s in states]
+    fast = [k for k in range(len(names)) if names[k] not in states]
+    rows = [out_all.index(o) for o in outputs]
+    Ax, Bx, Cx = A[np.ix_(keep, keep)], B[keep], C[np.ix_(rows, keep)]
+    Dr = D[rows]
+    if fast:
+        Azz = A[np.ix_(fast, fast)]
+        SA = np.linalg.solve(Azz, A[np.ix_(fast, keep)])
+        SB = np.linalg.solve(Azz, B[fast])
+        Axz, Cz = A[np.ix_(keep, fast)], C[np.ix_(rows, fast)]
+        Ax, Bx = Ax - Axz @ SA, Bx - Axz @ SB
+        Cx, Dr = Cx - Cz @ SA, Dr - Cz @ SB
+    inputs = [str(i) for i in model["B"].input.values]
+    ds = xr.Dataset(
+        {"A": (("state_dot", "state"), Ax), "B": (("state_dot", "input"), Bx),
+         "C": (("output", "state"), Cx), "D": (("output", "input"), Dr),
+         "delay": (("state_dot", "input"), np.zeros_like(Bx))},
+        coords={"state_dot": states, "state": states, "input": inputs, "output": outputs},
+        attrs={**model.attrs, "residualized": ",".join(names[k] for k in fast)})
+    for name in ("trim_input",):
+        if name in model:
+            ds[name] = model[name]
+    return ds

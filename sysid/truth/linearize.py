@@ -17,6 +17,18 @@ Quasi-steady 6-DoF reduction
     ``A_r = A11 - A12 A22^-1 A21``, ``B_r = B1 - A12 A22^-1 B2``, over the nine states
     ``u v w p q r phi theta psi``.
 
+Measured outputs
+    The FMU's accelerometer outputs ``ax ay az`` (specific force at the CG) are linearised
+    the same way, ``C[:, j] = (y(x + h_j e_j) - y(x - h_j e_j)) / (2 h_j)`` and likewise
+    ``D`` (the outputs are read after setting the perturbed states and inputs), and appended
+    as output rows of the full model.
+
+Reduction to a structure (:func:`truth_for_structure`)
+    Any structure's truth: residualise every state the structure does not have (e.g. keep
+    ``u ... psi, a1, b1`` of a hybrid model), keep its outputs, then express the states the
+    structure does not measure in the structure's own scaling (below), and read each
+    parameter as "entry minus the structure's fixed part".
+
 Named derivatives follow :mod:`sysid.core.kinematics`: ``X_u = A_r[u, u] - A_kin[u, u]`` etc.,
 the aerodynamic part of the entry once the rigid-body kinematic and gravity terms of the trim
 are removed. Everything is returned in analysis units (ft/s, deg/s, deg, %).
@@ -24,6 +36,7 @@ are removed. Everything is returned in analysis units (ft/s, deg/s, deg, %).
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,8 +47,9 @@ from sysid.fmi.runtime import DerivativeFunction, FMUModel
 from sysid.truth.fmu import load_fmu
 from sysid.truth.trim import NAVIGATION, TrimResult
 from sysid.core.kinematics import FORCE_LETTER, derivative_name, rigid_body_terms
-from sysid.core.units import (ANALYSIS_UNIT, CHANNELS, CONTROLS, STATES_6DOF,
+from sysid.core.units import (ACCELERATIONS, ANALYSIS_UNIT, CHANNELS, CONTROLS, STATES_6DOF,
                               conversion_factor)
+from sysid.models import LinearStructure, residualize_model
 
 #: Default relative finite-difference step (times the state's nominal value).
 DEFAULT_STEP = 1e-5
@@ -97,6 +111,41 @@ def jacobians_si(trim: TrimResult, *, step: float = DEFAULT_STEP, fmu=None
             xr.DataArray(B, dims=("state_dot", "input"),
                          coords={"state_dot": list(names), "input": list(CONTROLS)},
                          attrs={"units": "SI per %", "step": step}))
+
+
+def output_jacobians_si(trim: TrimResult, names, *, step: float = DEFAULT_STEP, fmu=None
+                        ) -> tuple[xr.DataArray, xr.DataArray]:
+    """C and D of the FMU outputs ``names`` (SI) by central differences, like
+    :func:`jacobians_si`: dims ``(output, state)`` and ``(output, input)``."""
+    model = _model(trim, fmu)
+    f = DerivativeFunction(model, trim.parameters)
+    names = list(names)
+    try:
+        states = model.state_names
+        x0 = np.array([trim.states[s] for s in states])
+        u0 = np.array([trim.controls[c] for c in CONTROLS])
+        nominal = np.array([model.variable(s).nominal or 1.0 for s in states], dtype=float)
+
+        def y(x, u):
+            vals = f.outputs(x, u, names)
+            return np.array([vals[k] for k in names], dtype=float)
+
+        C = np.empty((len(names), len(states)))
+        D = np.empty((len(names), len(CONTROLS)))
+        for j in range(len(states)):
+            e = np.zeros(len(states))
+            e[j] = step * nominal[j]
+            C[:, j] = (y(x0 + e, u0) - y(x0 - e, u0)) / (2 * e[j])
+        for j in range(len(CONTROLS)):
+            e = np.zeros(len(CONTROLS))
+            e[j] = step
+            D[:, j] = (y(x0, u0 + e) - y(x0, u0 - e)) / (2 * step)
+    finally:
+        f.close()
+    return (xr.DataArray(C, dims=("output", "state"),
+                         coords={"output": names, "state": list(states)}),
+            xr.DataArray(D, dims=("output", "input"),
+                         coords={"output": names, "input": list(CONTROLS)}))
 
 
 def _model(trim: TrimResult, fmu) -> FMUModel:
@@ -189,15 +238,25 @@ def linearize(trim: TrimResult, *, step: float = DEFAULT_STEP, fmu=None) -> Line
     A_an, B_an = _to_analysis(model, A, B, names)
     attrs = _common_attrs(trim, step)
 
-    # Every state is an output (C = I, D = 0), so the full model is a complete model Dataset:
-    # sysid.models.frequency_response evaluates it like any identified model.
+    # Every state is an output (C = I, D = 0), and so are the accelerometers the FMU has, so
+    # the full model is a complete model Dataset: sysid.models.frequency_response evaluates it
+    # like any identified model.
     n = len(names)
+    acc = [a for a in ACCELERATIONS if a in model.output_names]
+    C_an, D_an = np.eye(n), np.zeros((n, len(CONTROLS)))
+    if acc:
+        Cy, Dy = output_jacobians_si(trim, acc, step=step, fmu=model)
+        ky = np.array([si_to_analysis(model, a) for a in acc])
+        kx = np.array([si_to_analysis(model, s) for s in names])
+        C_an = np.vstack([C_an, Cy.sel(state=names).values * ky[:, None] / kx[None, :]])
+        D_an = np.vstack([D_an, Dy.values * ky[:, None]])
     full = xr.Dataset(
         {"A": (("state_dot", "state"), A_an), "B": (("state_dot", "input"), B_an),
-         "C": (("output", "state"), np.eye(n)),
-         "D": (("output", "input"), np.zeros((n, len(CONTROLS)))),
+         "C": (("output", "state"), C_an),
+         "D": (("output", "input"), D_an),
          "eigenvalue": _eigen(A_an)},
-        coords={"state_dot": names, "state": names, "output": names, "input": list(CONTROLS),
+        coords={"state_dot": names, "state": names, "output": names + acc,
+                "input": list(CONTROLS),
                 "unit": ("state", [analysis_unit(model, s) for s in names])},
         attrs={**attrs, "structure": "full"})
 
@@ -206,6 +265,86 @@ def linearize(trim: TrimResult, *, step: float = DEFAULT_STEP, fmu=None) -> Line
     Ar, Br = residualize(A_an, B_an, slow, fast)
     quasi = _quasi_steady_dataset(Ar, Br, trim, attrs)
     return Linearization(full=full, quasi_steady=quasi, trim=trim)
+
+
+def truth_for_structure(full: xr.Dataset, structure: LinearStructure) -> xr.Dataset:
+    """The truth linearisation as a model of ``structure``: its states, outputs, parameters.
+
+    ``full`` is :attr:`Linearization.full` (or ``/linearization_full`` of a campaign). Steps:
+
+    1. residualise every state the structure lacks (:func:`sysid.models.residualize_model`),
+       keeping the structure's outputs (the accelerometer rows come from the FMU's outputs);
+    2. unmeasured states (no output reads them directly) are defined only up to a change of
+       coordinates ``z' = T z``; the structure fixes it through the A entries it holds fixed
+       in their rows, e.g. ``A[a1,q] = A[b1,p] = -1`` of a hybrid model. ``T`` solves
+       ``T A_truth[z, Q] = A_structure[z, Q]`` (least squares) over the measured columns
+       ``Q`` where every z-row entry is fixed and some is non-zero; then ``A' = S A S^-1``,
+       ``B' = S B``, ``C' = C S^-1`` with ``S = diag(I, T)``. Without such columns ``T = I``.
+       For the hybrid models this maps the truth's tip-path-plane angles (``a1`` aft,
+       ``b1`` to starboard, deg) onto the structure's normalised flapping states;
+    3. each parameter is the entry minus the structure's fixed part
+       (:meth:`LinearStructure.values_from_model`), with the output equations removed from
+       C and D; delays are 0 (the truth's actuator lags are residualised states).
+
+    Returns the model Dataset of ``structure`` at those values (``value`` per parameter,
+    matrices of the structure), with attributes ``method = "linearization"`` and
+    ``normalisation`` (T, row-major) -- the parameters' truth values.
+    """
+    states, outputs = list(structure.states), list(structure.outputs)
+    avail = [str(o) for o in full["C"].output.values]
+    missing = [o for o in outputs if o not in avail]
+    if missing:
+        raise ValueError(f"truth_for_structure: the linearisation has no outputs {missing} "
+                         f"(has {avail})")
+    red = residualize_model(full, states, outputs)
+    A, B, C, D = (red[k].values.copy() for k in ("A", "B", "C", "D"))
+    measured = np.any(structure.C0 != 0, axis=0) | np.any(structure.M != 0, axis=0)
+    z = [i for i, s in enumerate(states) if not measured[i] and s not in STATES_6DOF]
+    T = np.eye(len(z))
+    if z:
+        free = np.zeros_like(structure.A0, dtype=bool)
+        fixedA = structure.A0.copy()
+        vals = structure.values()
+        for k, (r, c) in ((k, (states.index(p.row), states.index(p.column)))
+                          for k, p in enumerate(structure.parameters) if p.matrix == "A"):
+            if structure.parameters[k].free:
+                free[r, c] = True
+            else:
+                fixedA[r, c] += vals[k]
+        Q = [j for j in range(len(states)) if j not in z and not free[z, j].any()
+             and np.any(fixedA[z, j] != 0)]
+        if len(Q) >= len(z):
+            T = np.linalg.lstsq(A[np.ix_(z, Q)].T, fixedA[np.ix_(z, Q)].T, rcond=None)[0].T
+            S = np.eye(len(states))
+            S[np.ix_(z, z)] = T
+            Si = np.linalg.inv(S)
+            A, B, C = S @ A @ Si, S @ B, C @ Si
+    model = structure.to_dataset()
+    model["A"].values, model["B"].values = A, B
+    model["C"].values, model["D"].values = C, D
+    # C and D carry the output equations; strip them so values_from_model reads C/D params
+    model_plain = model.copy()
+    if structure.has_output_equations:
+        model_plain["C"].values = C - structure.M @ (A - structure.K)
+        model_plain["D"].values = D - structure.M @ B
+    theta = structure.values_from_model(model_plain)
+    delay_free = [j for j, k in enumerate(structure.free_index)
+                  if structure.parameters[k].matrix == "delay"]
+    theta[delay_free] = 0.0
+    values = structure.values(theta)
+    for k, p in enumerate(structure.parameters):  # fixed parameters read from the truth too
+        if not p.free and p.matrix in "AB":
+            src = A if p.matrix == "A" else B
+            cols = states if p.matrix == "A" else list(structure.inputs)
+            fixed0 = structure.A0 if p.matrix == "A" else structure.B0
+            values[k] = (src[states.index(p.row), cols.index(p.column)]
+                         - fixed0[states.index(p.row), cols.index(p.column)])
+    model["value"].values = values
+    model.attrs.update(full.attrs)
+    model.attrs.update({"method": "linearization", "structure": structure.name,
+                        "normalisation": json.dumps(np.round(T, 12).tolist()),
+                        "reduction": "residualised: " + red.attrs.get("residualized", "")})
+    return model
 
 
 def _quasi_steady_dataset(Ar, Br, trim: TrimResult, attrs: dict) -> xr.Dataset:
