@@ -253,9 +253,16 @@ def test_transient_terms_remove_closed_loop_leakage_near_an_unstable_mode():
     there); with the taper-derivative transforms of theta and q as extra inputs it is exact."""
     records, truth = _unstable_pitch_records()
     kw = dict(frequencies=np.geomspace(0.1, 3.0, 60))
-    plain = frequency_response(records, ["lon"], ["q"], **kw)
+    plain = frequency_response(records, ["lon"], ["q"], transient_states=(), **kw)
+    assert plain.attrs["transient_states"] == [] and plain.attrs["transient_choice"] == "off"
     fixed = frequency_response(records, ["lon"], ["q"], transient_states="theta,q", **kw)
     assert fixed.attrs["transient_states"] == ["theta", "q"]
+    assert fixed.attrs["transient_choice"] == "given"
+    # the default picks the measured states itself (here q and theta, in LEAKAGE_STATES order)
+    default = frequency_response(records, ["lon"], ["q"], **kw)
+    assert default.attrs["transient_states"] == ["q", "theta"]
+    assert default.attrs["transient_choice"] == "auto"
+    np.testing.assert_allclose(default.H.values, fixed.H.values, rtol=1e-9, equal_nan=True)
     assert list(fixed.input.values) == ["lon"]          # the regressors are not reported
     w = plain.frequency.values
     exact = truth(w)
@@ -270,7 +277,8 @@ def test_transient_terms_remove_closed_loop_leakage_near_an_unstable_mode():
     assert np.abs(err_plain).max() > 2.0                # the test can see the bias
     assert ok.mean() > 0.95
     assert np.abs(err_db).max() < 0.3 and np.abs(err_deg).max() < 2.0
-    assert float(fixed.partial_coherence.sel(output="q", input="lon").min()) > 0.99
+    # noise-free: near 1, less the charge of the two regressors' degrees of freedom
+    assert float(fixed.partial_coherence.sel(output="q", input="lon").min()) > 0.98
 
 
 def test_transient_terms_need_conditioning_and_distinct_channels():
@@ -301,3 +309,63 @@ def test_cli_transient_states(tmp_path):
     assert list(fr.attrs["transient_states"]) == ["theta", "q"]
     err = db(np.abs(fr.H.sel(output="q", input="lon").values / truth(fr.frequency.values)))
     assert np.nanmax(np.abs(err)) < 0.3
+    # the default is leakage-free; --no-transient-states is the paper's plain estimate
+    assert main(["frequency-response", str(path), "--inputs", "lon", "--outputs", "q",
+                 "--omega-min", "0.1", "--omega-max", "3", "--n-frequencies", "40",
+                 "--quiet"]) == 0
+    fr = read_campaign(path)["frequency_response"].to_dataset()
+    assert list(fr.attrs["transient_states"]) == ["q", "theta"]
+    assert fr.attrs["transient_choice"] == "auto"
+    assert main(["frequency-response", str(path), "--inputs", "lon", "--outputs", "q",
+                 "--omega-min", "0.1", "--omega-max", "3", "--n-frequencies", "40",
+                 "--no-transient-states", "--quiet"]) == 0
+    fr = read_campaign(path)["frequency_response"].to_dataset()
+    assert len(fr.attrs["transient_states"]) == 0 and fr.attrs["transient_choice"] == "off"
+    err = db(np.abs(fr.H.sel(output="q", input="lon").values / truth(fr.frequency.values)))
+    assert np.nanmax(np.abs(err)) > 1.0      # the leakage is back
+
+
+def test_extra_regressors_are_charged_their_degrees_of_freedom():
+    """n_extra regressors that explain nothing still shrink a window's residual spectrum by
+    about (n_d - n_extra) / n_d, which inflates the coherence (here a true 0.5 reads 0.56);
+    charge_regressors restores the residual by its degrees of freedom."""
+    from sysid.spectral.response import charge_regressors
+
+    n_d, n_extra = 40.0, 8
+    explained, residual = 1.0, 1.0                       # true coherence 0.5
+    raw = residual * (n_d - n_extra) / n_d               # what the extra regressors leave
+    dims = ("output", "input", "frequency", "window")
+    one = np.ones((1, 1, 3, 2))
+    per_window = xr.Dataset(
+        {"Gxx_pair": (dims, one), "Gxy_pair": (dims, one * np.sqrt(explained) + 0j),
+         "Gyy_pair": (dims, one * (explained + raw)),
+         "partial_coherence": (dims, one * explained / (explained + raw)),
+         "random_error": (dims, one * 0.1), "n_d": (("window",), [n_d, 9.0])})
+    out = charge_regressors(per_window, n_extra, C_eps=0.7)
+    g2 = out.partial_coherence.isel(window=0).values
+    np.testing.assert_allclose(g2, 0.5, rtol=1e-12)
+    assert float(per_window.partial_coherence.isel(window=0).max()) > 0.55   # before: inflated
+    # a window left with fewer than 5 averages is not used (infinite random error)
+    assert np.all(np.isinf(out.random_error.isel(window=1).values))
+    assert np.all(np.isfinite(out.random_error.isel(window=0).values))
+
+
+def test_auto_transient_states_take_the_measured_rigid_body_states_only():
+    from sysid.spectral.response import LEAKAGE_STATES, resolve_transient_states
+
+    records, _ = _unstable_pitch_records(n_records=2, duration=60.0)
+    extra = [r.assign(psi=r["q"] * 0.0 + 1.0, u=r["q"] * 0.1) for r in records]
+    assert resolve_transient_states(extra, "auto", inputs=["lon"]) == (["u", "q", "theta"],
+                                                                       "auto")
+    # a state missing from one record is not used; psi never is; inputs never are
+    partial = [extra[0], records[1]]
+    assert resolve_transient_states(partial, "auto", inputs=["lon"]) == (["q", "theta"], "auto")
+    assert resolve_transient_states(extra, "auto", inputs=["lon", "q"])[0] == ["u", "theta"]
+    assert resolve_transient_states(extra, "auto", conditioned=False) == ([], "off")
+    assert resolve_transient_states(extra, "", inputs=["lon"]) == ([], "off")
+    assert resolve_transient_states(extra, (), inputs=["lon"]) == ([], "off")
+    assert "psi" not in LEAKAGE_STATES and len(LEAKAGE_STATES) == 8
+    # no state measured at all: off, and recorded so
+    bare = [r.rename(q="y", theta="z") for r in records]
+    fr = frequency_response(bare, ["lon"], ["y"], omega_max=10.0, n_frequencies=20)
+    assert fr.attrs["transient_states"] == [] and fr.attrs["transient_choice"] == "off"

@@ -50,10 +50,12 @@ def register(subparsers) -> None:
                    help="random-error constant of Eq. 9 (default 0.7)")
     p.add_argument("--unconditioned", action="store_true",
                    help="single-input estimates instead of MIMO conditioning")
-    p.add_argument("--transient-states", default="",
-                   help="comma-separated measured states (e.g. u,v,w,p,q,r,phi,theta) whose "
-                        "segment start/end leakage is conditioned out (default: none, the "
-                        "paper's method)")
+    p.add_argument("--transient-states", default="auto",
+                   help="comma-separated measured states whose segment start/end leakage is "
+                        "conditioned out (default 'auto': those of u,v,w,p,q,r,phi,theta "
+                        "that the records carry)")
+    p.add_argument("--no-transient-states", action="store_true",
+                   help="no leakage conditioning (the paper's method)")
     p.add_argument("--keep-windows", action="store_true",
                    help="also store the per-window results in /frequency_response_windows")
     p.add_argument("--quiet", action="store_true", help="no progress or summary output")
@@ -74,13 +76,17 @@ def run(args) -> int:
         omega_max=args.omega_max,
         C_eps=DEFAULT_C_EPS if args.C_eps is None else args.C_eps,
         conditioned=not args.unconditioned, keep_windows=args.keep_windows, progress=progress,
-        transient_states=args.transient_states)
+        transient_states=() if args.no_transient_states else args.transient_states)
     composite, per_window = result if args.keep_windows else (result, None)
     groups = {"frequency_response": composite}
     if per_window is not None:
         groups["frequency_response_windows"] = per_window
     update_campaign_groups(args.campaign, groups)
     if not args.quiet:
+        states = list(composite.attrs.get("transient_states", []))
+        choice = composite.attrs.get("transient_choice", "")
+        print("leakage conditioning: "
+              + (f"{', '.join(states)} ({choice})" if states else "off"))
         print(format_coherent_ranges(composite))
         print(f"wrote {' and '.join('/' + g for g in groups)} to {args.campaign}")
     return 0

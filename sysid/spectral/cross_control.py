@@ -41,7 +41,8 @@ def cross_control_summary(tree: xr.DataTree, pattern: str = "sweep_*") -> xr.Dat
         records = [tree[f"maneuvers/{n}"].to_dataset() for n in names
                    if tree[f"maneuvers/{n}"].attrs.get("axis") == axis]
         if records:
-            fr = frequency_response(records, CONTROLS, ["q"], n_windows=3)
+            fr = frequency_response(records, CONTROLS, ["q"], n_windows=3,
+                                    transient_states=())  # input spectra only
             per_axis[axis] = fr["cross_coherence"]
     if not per_axis:
         return None

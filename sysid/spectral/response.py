@@ -41,13 +41,19 @@ frequency)
     the window lengths (s) and their independent averages ``T_r / T``.
 
 Attributes: ``overlap``, ``C_eps``, ``windows`` (s), ``records``, ``inputs``, ``outputs``,
-``conditioned``, ``collinear_threshold``, ``conditioning_method``.
+``conditioned``, ``collinear_threshold``, ``conditioning_method``, ``transient_states`` (the
+states whose segment start/end leakage was conditioned out; empty when off) and
+``transient_choice`` (``"auto"``, ``"given"`` or ``"off"``: how they were chosen).
+
+Leakage-free by default: with ``transient_states="auto"`` (the default) every measured state
+among :data:`LEAKAGE_STATES` joins the conditioning through its taper-derivative transform
+(docs/methods.md, "Leakage-free conditioning").
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import xarray as xr
@@ -65,6 +71,43 @@ DEFAULT_N_FREQUENCIES = 200
 #: Default highest frequency as a fraction of the sample rate: ``omega_max = 2 pi fs / 10``
 #: (ten samples per period of the highest frequency; 62.8 rad/s at 100 Hz).
 SAMPLES_PER_PERIOD_AT_OMEGA_MAX = 10.0
+
+
+#: The states whose segment start/end leakage ``transient_states="auto"`` conditions out when
+#: they are measured: the rigid-body states of the quasi-steady 6-DoF model that feed back into
+#: its dynamics (velocities, rates, and the bank and pitch attitudes through gravity). The
+#: heading ``psi`` is left out: no force or moment depends on it, so its transient leaks into
+#: no other channel, and every regressor costs a degree of freedom per segment.
+LEAKAGE_STATES = ("u", "v", "w", "p", "q", "r", "phi", "theta")
+#: Values of ``transient_states`` that choose :data:`LEAKAGE_STATES` automatically.
+AUTO = "auto"
+#: The campaign group where a study keeps the conditioned responses without leakage
+#: conditioning beside the default ones (docs/data_model.md; the report's before/after figure).
+NO_TRANSIENT_GROUP = "frequency_response_no_transient"
+
+
+def resolve_transient_states(records, transient_states, *, inputs: Sequence[str] = (),
+                             conditioned: bool = True) -> tuple[list[str], str]:
+    """The transient states a frequency response will use, and how they were chosen.
+
+    ``transient_states`` is ``"auto"`` (every channel of :data:`LEAKAGE_STATES` present in all
+    records and not an input; none for an unconditioned estimate), an explicit sequence or
+    comma-separated string (used as given and checked later), or empty / None (off).
+    Returns ``(states, choice)`` with ``choice`` one of ``"auto"``, ``"given"``, ``"off"``.
+    """
+    if isinstance(transient_states, str):
+        transient_states = transient_states.strip()
+    if transient_states is None or len(transient_states) == 0:
+        return [], "off"
+    if isinstance(transient_states, str) and transient_states.lower() == AUTO:
+        if not conditioned:
+            return [], "off"
+        items = _spectra._named_records(records)
+        present = [c for c in LEAKAGE_STATES
+                   if c not in inputs and all(c in ds.data_vars for _, ds in items)]
+        return present, (AUTO if present else "off")
+    states = _channel_list(transient_states, "transient state")
+    return states, ("given" if states else "off")
 
 
 def _progress(progress) -> Progress:
@@ -113,7 +156,7 @@ def frequency_response(records, inputs: Sequence[str], outputs: Sequence[str], *
                        method: str = "matrix",
                        coherence_weight: float = _composite.COHERENCE_WEIGHT,
                        keep_windows: bool = False, progress=None,
-                       transient_states: Sequence[str] = ()):
+                       transient_states: Sequence[str] | str | None = AUTO):
     """Composite (conditioned) frequency responses of every input/output pair.
 
     Parameters
@@ -155,15 +198,19 @@ def frequency_response(records, inputs: Sequence[str], outputs: Sequence[str], *
         Also return the per-window results (dim ``window``, s).
     progress : sysid.core.util.Progress or bool, optional
         Per-stage progress lines; silent by default.
-    transient_states : sequence of str (or comma-separated str)
-        Measured state channels (e.g. ``u,v,w,p,q,r,phi,theta``) whose taper-derivative
-        transforms join the conditioning as extra inputs (:func:`sysid.spectral.spectra.window_spectra`),
-        removing the leakage of each segment's start and end conditions. Off by default (the
-        paper's method). It matters near lightly damped or unstable modes flown in closed loop:
-        on the truth FMU's hover linearisation flown with the campaign's holds, noise-free,
-        q/lon near the unstable pitch-roll oscillation (0.2-0.5 rad/s) is 3-7 dB high without
-        it and within 0.4 dB with it. Each regressor costs an average per segment; the
-        random error (Eq. 13) is not corrected for that.
+    transient_states : "auto", sequence of str (or comma-separated str), or empty
+        Measured state channels whose taper-derivative transforms join the conditioning as
+        extra inputs (:func:`sysid.spectral.spectra.window_spectra`), removing the leakage of
+        each segment's start and end conditions (docs/methods.md, "Leakage-free
+        conditioning"). Default ``"auto"``: the channels of :data:`LEAKAGE_STATES`
+        (``u v w p q r phi theta``: the states that drive the 6-DoF dynamics; not ``psi``,
+        on which nothing depends) that every record carries, none for an unconditioned
+        estimate. ``()`` or ``""`` turns it off (the paper's method). It matters near lightly
+        damped or unstable modes flown in closed loop, where ``(j omega - A)^-1`` is large.
+        The correction is exact for a linear system whose states are all measured; with
+        some missing it removes their part of the leakage only. Each regressor costs a
+        degree of freedom of each window's averages, which the partial coherence and the
+        random error are charged for (:func:`charge_regressors`).
 
     Returns
     -------
@@ -184,7 +231,10 @@ def frequency_response(records, inputs: Sequence[str], outputs: Sequence[str], *
     both = set(inputs) & set(outputs)
     if both:
         raise InputDataError(f"channels {sorted(both)} are both inputs and outputs")
-    transient = _channel_list(transient_states, "transient state") if transient_states else []
+    if not isinstance(records, (xr.Dataset, Mapping)):
+        records = list(records)   # read twice below (channels, then signals)
+    transient, transient_choice = resolve_transient_states(
+        records, transient_states, inputs=inputs, conditioned=conditioned)
     if transient and not conditioned:
         raise InputDataError("transient_states need the conditioned (MIMO) estimate: the "
                              "transient terms are extra inputs of the conditioning")
@@ -225,6 +275,8 @@ def frequency_response(records, inputs: Sequence[str], outputs: Sequence[str], *
                 collinear_inputs=inputs)
             # the transient regressors are conditioned on, not reported
             per_window = per_window.sel({d: inputs for d in controls if d in per_window.dims})
+            if transient:
+                per_window = charge_regressors(per_window, len(transient), C_eps=C_eps)
         else:
             per_window = siso
     with prog.stage("frequency response: composite windowing"):
@@ -243,6 +295,7 @@ def frequency_response(records, inputs: Sequence[str], outputs: Sequence[str], *
         "conditioning_method": method if conditioned else "", "sysid_version": __version__,
         "coherence_weight": coherence_weight,
         "sample_interval": dt, "transient_states": list(transient),
+        "transient_choice": transient_choice,
     }
     result.attrs = dict(attrs)
     result.attrs["collinear_note"] = collinear_note
@@ -255,6 +308,41 @@ def frequency_response(records, inputs: Sequence[str], outputs: Sequence[str], *
     per_window.attrs = dict(attrs)
     _units(per_window, inputs, outputs)
     return result, per_window
+
+
+def charge_regressors(per_window: xr.Dataset, n_extra: int, *,
+                      C_eps: float = _spectra.DEFAULT_C_EPS) -> xr.Dataset:
+    """Charge the conditioned pair spectra for ``n_extra`` extra regressors (the transient
+    terms): each costs a degree of freedom of the window's averages.
+
+    Conditioning on ``n_extra`` more regressors than the paper's inputs fits away a share of
+    the output's residual that grows with ``n_extra / n_d`` even where they explain nothing,
+    so the residual spectrum, and with it the partial coherence, would look better than it
+    is (most in the longest window, with the fewest averages). As a least-squares residual
+    variance is divided by its degrees of freedom, the residual part of ``Gyy_pair`` is scaled
+    by ``n_d / (n_d - n_extra)`` (``n_d = T_r / T``):
+
+        Gyy' = |Gxy|^2 / Gxx + (Gyy - |Gxy|^2 / Gxx) n_d / (n_d - n_extra)
+
+    and the partial coherence (Eq. 11) and random error (Eq. 13, with ``n_d - n_extra``
+    averages) follow from it; ``H`` is unchanged. A window left with fewer than
+    :data:`sysid.spectral.spectra.MIN_AVERAGES` averages gets an infinite random error, so
+    compositing does not use it (docs/methods.md, "Leakage-free conditioning").
+    """
+    n_d = per_window["n_d"]
+    n_eff = n_d - n_extra
+    factor = (n_d / n_eff).where(n_eff >= _spectra.MIN_AVERAGES)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        explained = abs(per_window["Gxy_pair"]) ** 2 / per_window["Gxx_pair"]
+        gyy = explained + (per_window["Gyy_pair"] - explained).clip(min=0.0) * factor
+        g2 = (explained / gyy).clip(0.0, 1.0)
+    eps = _conditioning.random_error(g2, n_eff.where(n_eff >= _spectra.MIN_AVERAGES), C_eps)
+    out = per_window.copy()
+    out["Gyy_pair"] = gyy.where(np.isfinite(gyy), per_window["Gyy_pair"]).assign_attrs(
+        per_window["Gyy_pair"].attrs)
+    out["partial_coherence"] = g2.fillna(0.0).assign_attrs(per_window["partial_coherence"].attrs)
+    out["random_error"] = eps.fillna(np.inf).assign_attrs(per_window["random_error"].attrs)
+    return out
 
 
 def _assemble(per_window: xr.Dataset, siso: xr.Dataset, conditioned: bool,
@@ -334,4 +422,6 @@ def siso_frequency_response(records, inputs: Sequence[str], outputs: Sequence[st
     ignoring the other inputs (for comparison with the conditioned result); same parameters
     as :func:`frequency_response` except ``conditioned``."""
     kwargs.pop("conditioned", None)
-    return frequency_response(records, inputs, outputs, conditioned=False, **kwargs)
+    kwargs.pop("transient_states", None)
+    return frequency_response(records, inputs, outputs, conditioned=False,
+                              transient_states=(), **kwargs)

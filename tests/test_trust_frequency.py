@@ -1,0 +1,142 @@
+"""Trustworthy estimates by default (issue 21) on a system the project did not fly itself.
+
+The test bed (``tests/trust_system.py``): a coupled 6-DoF-like hover plant with an unstable
+pitch-roll oscillation and four input delays, stabilised by a loose state feedback on every
+control (so the recorded controls are correlated), flown with seeded sweeps and measured with
+white noise; every record is an exact periodic steady state, so the plant's analytic
+open-loop response is the truth.
+
+Must show: the *default* composite responses (leakage-free conditioning on) are within
+0.3 dB / 2 deg median error of the analytic response over 0.7-15 rad/s for every pair with
+partial coherence >= 0.6 (a pair counts when it meets 0.6 over at least half of that band;
+the median runs over the points that meet it), and the frequency-domain fit of the true
+structure (``tests/structures/coupled_hover_8state.toml``, neutral start values) lands every
+parameter within 3 Cramer-Rao bounds of the truth. Without leakage conditioning both fail
+(the tests check that too, so they can see the difference).
+
+Measured (docs/notes/2026-11-24-leakage-free-by-default.md): seeds 0-7, 8 of 8 pass both;
+without leakage conditioning 0 of 8 pass the fit check (18-21 of 28 within 3 bounds).
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+import trust_system as ts
+from sysid.core.guidelines import BIAS_BOUNDS_MAX, COHERENCE_MIN
+from sysid.core.units import CONTROLS, STATES_6DOF
+from sysid.identify import identify_frequency_domain
+from sysid.spectral.response import frequency_response
+
+BAND = (0.7, 15.0)                  #: rad/s, where the responses are judged
+MAX_DB, MAX_DEG = 0.3, 2.0          #: median error tolerated (issue 21)
+OUTPUTS = ("u", "v", "w", "p", "q", "r", "phi", "theta")
+#: Seeds of the several-seed check: all 8 with SYSID_EXHAUSTIVE=1, one more otherwise.
+SEEDS = range(1, 8) if os.environ.get("SYSID_EXHAUSTIVE") == "1" else (1,)
+
+
+def pair_errors(fr) -> dict[str, tuple[float, float, int]]:
+    """``"out/in" -> (median |dB error|, median |deg error|, points)`` against the analytic
+    response, for the pairs coherent (>= 0.6) over at least half of :data:`BAND`."""
+    w = fr.frequency.values
+    band = (w >= BAND[0]) & (w <= BAND[1])
+    G = ts.analytic(w)
+    out = {}
+    for o in OUTPUTS:
+        for i in CONTROLS:
+            H = fr.H.sel(output=o, input=i).values
+            coherent = band & (fr.partial_coherence.sel(output=o, input=i).values
+                               >= COHERENCE_MIN) & np.isfinite(H)
+            if coherent.sum() < 0.5 * band.sum():
+                continue
+            ratio = H[coherent] / G.sel(output=o, input=i).values[coherent]
+            out[f"{o}/{i}"] = (float(np.median(np.abs(20 * np.log10(np.abs(ratio))))),
+                               float(np.median(np.abs(np.angle(ratio, deg=True)))),
+                               int(coherent.sum()))
+    return out
+
+
+def failing(errors) -> dict:
+    return {k: v for k, v in errors.items() if v[0] > MAX_DB or v[1] > MAX_DEG}
+
+
+def fit_errors_in_bounds(fr) -> tuple[dict[str, float], object]:
+    """The true structure fitted from its neutral TOML values: ``name -> |error| / CR``."""
+    st = ts.structure()
+    result = identify_frequency_domain(fr, st, reduce=False)
+    truth = ts.true_theta(st)
+    z = np.abs(result.theta - truth) / result.statistics.cramer_rao
+    return dict(zip(result.structure.free_names, z)), result
+
+
+@pytest.fixture(scope="module")
+def flown():
+    """Seed 0: records and the default (leakage-free) composite responses."""
+    records = ts.records(0)
+    return records, frequency_response(records, CONTROLS, STATES_6DOF)
+
+
+def test_default_responses_are_leakage_free_and_match_the_analytic_plant(flown):
+    records, fr = flown
+    assert fr.attrs["transient_choice"] == "auto"
+    assert list(fr.attrs["transient_states"]) == list(OUTPUTS)      # psi is not used
+    errors = pair_errors(fr)
+    print({k: (round(a, 3), round(b, 2), n) for k, (a, b, n) in errors.items()})
+    assert all(p in errors for p in ("q/lon", "p/lat", "w/col", "r/ped"))
+    assert len(errors) >= 12
+    assert not failing(errors), failing(errors)
+    # the feedback moves every secondary control (8-55 % of the swept one's RMS) and
+    # correlates the controls (pooled cross-coherence up to 0.37 lat-lon, 0.49 lat-ped)
+    for rec in records:
+        axis = rec.attrs["axis"]
+        assert min(float(rec[c].std() / rec[axis].std()) for c in CONTROLS) > 0.08
+    assert float(fr.cross_coherence.sel(input="lat", input_j="lon").max()) > 0.3
+    assert float(fr.cross_coherence.sel(input="lat", input_j="ped").max()) > 0.4
+    # the paper's plain conditioned estimate of the same records misses (the test can see it)
+    plain = frequency_response(records, CONTROLS, list(OUTPUTS), transient_states=())
+    plain_errors = pair_errors(plain)
+    assert failing(plain_errors), plain_errors
+
+
+def test_fit_of_the_true_structure_from_neutral_starts_lands_within_3_bounds(flown):
+    """Default start (no truth available): the equation error of the leakage-free responses,
+    from the structure's neutral values."""
+    _, fr = flown
+    z, result = fit_errors_in_bounds(fr)
+    print({k: round(float(v), 2) for k, v in z.items()}, f"J_ave {result.J_ave:.2f}")
+    assert result.start == "equation_error"
+    assert len(z) == 28
+    assert max(z.values()) <= BIAS_BOUNDS_MAX, {k: v for k, v in z.items() if v > 3}
+
+
+def test_cifer_bounds_do_not_depend_on_the_number_of_fitted_points(flown):
+    """The CIFER convention (docs/methods.md, "Accuracy"): the (20 / n_omega) normalisation
+    makes the information matrix, hence the bounds, independent of how densely each pair is
+    sampled; an unscaled least-squares Hessian would shrink them by sqrt(2) at twice the
+    points."""
+    _, fr = flown
+    st = ts.structure()
+    start = ts.true_theta(st)
+    a = identify_frequency_domain(fr, st, start=start, reduce=False, n_points=20)
+    b = identify_frequency_domain(fr, st, start=start, reduce=False, n_points=40)
+    ratio = b.statistics.cramer_rao / a.statistics.cramer_rao
+    print(f"CR(40 points) / CR(20 points): {ratio.min():.3f}..{ratio.max():.3f}")
+    assert np.all(np.abs(ratio - 1.0) < 0.1)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", SEEDS)
+def test_several_seeds_default_responses_and_fit(seed):
+    records = ts.records(seed)
+    fr = frequency_response(records, CONTROLS, STATES_6DOF)
+    errors = pair_errors(fr)
+    assert len(errors) >= 12 and not failing(errors), failing(errors)
+    z, _ = fit_errors_in_bounds(fr)
+    assert max(z.values()) <= BIAS_BOUNDS_MAX, {k: v for k, v in z.items() if v > 3}
+    # without leakage conditioning the same fit is biased beyond its bounds
+    plain = frequency_response(records, CONTROLS, STATES_6DOF, transient_states=())
+    z_plain, _ = fit_errors_in_bounds(plain)
+    assert max(z_plain.values()) > BIAS_BOUNDS_MAX
