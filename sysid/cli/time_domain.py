@@ -55,7 +55,8 @@ def register(subparsers) -> None:
     p.add_argument("--start", default="auto",
                    choices=TIME_DOMAIN_STARTS,
                    help="start values (default auto: /models/frequency_domain, else "
-                        "/linearization, else the structure's values)")
+                        "/linearization, else the equation error of /frequency_response, "
+                        "else the structure's values)")
     p.add_argument("--outputs", default=None,
                    help="comma-separated fitted outputs (default: all measured)")
     p.add_argument("--no-reduction", action="store_true", help="skip the model reduction")

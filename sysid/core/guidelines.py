@@ -16,8 +16,8 @@ References
 from __future__ import annotations
 
 __all__ = ["COHERENCE_MIN", "CROSS_COHERENCE_MAX", "J_AVE_MAX", "J_PAIR_MAX",
-           "CR_MAX_PERCENT", "INSENSITIVITY_MAX_PERCENT", "COST_INCREASE_MAX", "J_RMS_MAX",
-           "TIC_MAX", "FIT_TIME_LIMIT_S", "GUIDELINES", "REDUCTION_GUIDELINES"]
+           "CR_MAX_PERCENT", "INSENSITIVITY_MAX_PERCENT", "COST_INCREASE_MAX",
+           "BIAS_BOUNDS_MAX", "J_RMS_MAX", "TIC_MAX", "FIT_TIME_LIMIT_S", "GUIDELINES", "REDUCTION_GUIDELINES"]
 
 # -- frequency responses ---------------------------------------------------------------------
 #: Coherence gamma^2 above which a frequency point is accurate enough to fit and to judge
@@ -41,6 +41,11 @@ INSENSITIVITY_MAX_PERCENT = 10.0
 #: Largest rise of the cost (units of J_ave) a parameter's removal may cause in the stepwise
 #: reduction ([TR] model-structure reduction: removals must leave the cost nearly unchanged).
 COST_INCREASE_MAX = 2.0
+#: An estimate further from a known truth than this many of its (one-sigma) bounds is biased
+#: beyond what the noise explains: a structure or data problem, not noise (the fidelity
+#: scoreboard of sysid.assess.comparison; 3 sigma: an unbiased Gaussian estimate lands
+#: beyond it with probability 0.3 %; a project choice, docs/methods.md, "Accuracy").
+BIAS_BOUNDS_MAX = 3.0
 
 # -- time-domain verification ----------------------------------------------------------------
 #: Weighted rms output error with unit weights per ft/s, deg/s, deg ([TR] J_rms <= 1-2

@@ -62,10 +62,11 @@ from sysid.identify.stages import fit_frequency_domain, fit_time_domain
 from sysid.models import structure_path
 from sysid.report.html import write_report
 from sysid.spectral.cross_control import campaign_summary
-from sysid.spectral.response import frequency_response, siso_frequency_response
+from sysid.spectral.response import (NO_TRANSIENT_GROUP, frequency_response,
+                                     siso_frequency_response)
 from sysid.assess.coherence import format_coherent_ranges
-from sysid.assess.comparison import (compare_models, format_sign_agreement, format_table,
-                                     write_table_csv)
+from sysid.assess.comparison import (compare_models, format_scoreboard, format_sign_agreement,
+                                     format_table, write_table_csv)
 from sysid.assess.stages import verify_models
 from sysid.assess.validation import format_validation, truth_reference, validate_models
 from sysid.assess.verification import verification_table
@@ -109,6 +110,12 @@ class StudySettings:
     verification_maneuvers: str = "2311_*"
     sweep_maneuvers: str = "sweep_*"
     campaign_file: str | None = None  #: a campaign TOML instead of the built-in one
+    #: Leakage-free conditioning of the frequency responses
+    #: (:func:`sysid.spectral.response.frequency_response`): ``"auto"`` conditions out the
+    #: segment start/end transients of the measured states among u,v,w,p,q,r,phi,theta;
+    #: ``""`` turns it off (the paper's method); or comma-separated states. With it on, the
+    #: plain estimate is kept as ``/frequency_response_no_transient`` for the report.
+    transient_states: str = "auto"
 
     @property
     def fd_coherence(self) -> float:
@@ -200,7 +207,8 @@ class _Study:
                                              seed=settings.seed)
         self.key_campaign = _key("campaign", self.campaign.to_toml(), self.fmu_path.name,
                                  sysid.__version__)
-        self.key_fr = _key("fr", self.key_campaign, settings.sweep_maneuvers)
+        self.key_fr = _key("fr", self.key_campaign, settings.sweep_maneuvers,
+                           settings.transient_states)
         # The structure enters by its text, so that editing its file re-runs the fits.
         structure = (settings.structure, structure_path(settings.structure).read_text())
         self.key_fd = _key("fd", self.key_fr, structure, settings.fd_coherence)
@@ -279,10 +287,20 @@ class _Study:
             self.progress.message(f"[sysid] frequency response from {len(records)} "
                                   f"record(s): {', '.join(records)}")
             composite = frequency_response(records, CONTROLS, STATES_6DOF,
-                                           progress=self.progress)
+                                           progress=self.progress,
+                                           transient_states=settings.transient_states)
+            states = list(composite.attrs["transient_states"])
+            self.print("leakage conditioning: " + (", ".join(states) if states else "off"))
             self.print(format_coherent_ranges(composite))
             siso = siso_frequency_response(list(records.values()), CONTROLS, STATES_6DOF)
-            return {"frequency_response": composite, "frequency_response_siso": siso}
+            groups = {"frequency_response": composite, "frequency_response_siso": siso}
+            # The paper's plain conditioned estimate, for the report's comparison; when the
+            # default is already plain, an empty group that says so (no stale copy is left).
+            groups[NO_TRANSIENT_GROUP] = (
+                frequency_response(records, CONTROLS, STATES_6DOF, transient_states=())
+                if states else xr.Dataset(attrs={
+                    "note": "leakage conditioning off: /frequency_response is this estimate"}))
+            return groups
 
         groups = self.stage("frequency responses", self.path, "frequency_response",
                             self.key_fr, responses)
@@ -366,6 +384,7 @@ class _Study:
             table = compare_models(self.campaign_data)
             self.print(format_table(table))
             self.print(format_sign_agreement(table))
+            self.print(format_scoreboard(table))
             write_table_csv(table, out / "comparison.csv")
             return {"comparison": table}
 

@@ -49,7 +49,8 @@ from sysid.core.util import Progress
 from sysid.report.figures import Context, Renderer, report_processes
 from sysid.report.page import CSS, SCRIPT, esc
 from sysid.report.sections import (SECTIONS, PairResult, index, section_conditioning,
-                                   section_derivatives, section_guidelines, section_inputs,
+                                   section_derivatives, section_fidelity,
+                                   section_guidelines, section_inputs,
                                    section_pairs, section_provenance, section_reduction,
                                    section_time, section_trim)
 from sysid.report.handling_qualities import section_handling_qualities
@@ -89,6 +90,7 @@ def _page(ctx: Context, title: str | None) -> str:
         body["time"] = time["html"]
     with progress.stage("report: derivatives (Tables 2-3)"):
         body["derivatives"] = section_derivatives(ctx)
+        body["fidelity"] = section_fidelity(ctx)
     with progress.stage("report: guidelines, reduction, provenance"):
         body["guidelines"] = section_guidelines(ctx, pair_results, time)
         body["reduction"] = section_reduction(ctx)

@@ -34,6 +34,7 @@ __all__ = [
     "render_png",
     "inputs_figure",
     "conditioning_figure",
+    "leakage_figure",
     "cross_coherence_figure",
     "pair_figure",
     "time_response_figure",
@@ -186,6 +187,50 @@ def conditioning_figure(panels: Mapping[str, Mapping[str, np.ndarray]], omega: n
     axes[0].legend(fontsize=7, loc="best")
     fig.subplots_adjust(left=0.08, right=0.98, top=1.0 - 0.3 / height, bottom=0.5 / height,
                         hspace=0.55, wspace=0.32)
+    return fig
+
+
+def leakage_figure(panels: Mapping[str, Mapping[str, np.ndarray]], omega: np.ndarray,
+                   coherence: Mapping[str, np.ndarray]) -> Figure:
+    """Composite responses with and without leakage conditioning, one column per pair:
+    magnitude (dB) above phase (deg).
+
+    ``panels`` maps a pair (``"q/lon"``) to complex curves ``leakage_free`` (the default
+    estimate), ``plain`` (without the transient terms) and optionally ``linearization``;
+    ``coherence`` maps the pair to the default estimate's partial coherence, whose points
+    below the guideline are drawn faint.
+    """
+    n = len(panels)
+    height = 5.0
+    fig = _figure(3.0 * n + 0.5, height)
+    axes = fig.subplots(2, n, squeeze=False)
+    styles = (("linearization", "truth linearisation", color_of("linearization")),
+              ("plain", "without leakage conditioning", color_of("unconditioned")),
+              ("leakage_free", "leakage-free (default)", color_of("frequency_domain")))
+    for col, (pair, curves) in enumerate(panels.items()):
+        out, inp = pair.split("/")
+        weak = np.asarray(coherence.get(pair, np.ones_like(omega))) < COHERENCE_GUIDELINE
+        ref = None
+        for key, label, style in styles:
+            if key not in curves:
+                continue
+            H = np.asarray(curves[key])
+            mag = 20.0 * np.log10(np.abs(H))
+            phase = aligned_phase(np.angle(H, deg=True), ref)
+            ref = phase if ref is None else ref
+            if key != "linearization":
+                mag, phase = np.where(weak, np.nan, mag), np.where(weak, np.nan, phase)
+            axes[0, col].plot(omega, mag, label=label, **style)
+            axes[1, col].plot(omega, phase, label=label, **style)
+        axes[0, col].set_title(f"{out}/{_CONTROL_LABELS.get(inp, inp)}", fontsize=9)
+        axes[0, col].set_ylabel("magnitude [dB]")
+        axes[1, col].set_ylabel("phase [deg]")
+        for ax in axes[:, col]:
+            ax.set_xscale("log")
+            ax.grid(True, which="both", alpha=0.25)
+        axes[1, col].set_xlabel("ω [rad/s]")
+    axes[0, 0].legend(fontsize=7, loc="best")
+    fig.subplots_adjust(left=0.06, right=0.99, top=0.94, bottom=0.1, hspace=0.3, wspace=0.35)
     return fig
 
 

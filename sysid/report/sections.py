@@ -27,7 +27,10 @@ import sysid.report.plots as plots
 import sysid.report.read as read
 from sysid import __version__
 from sysid.assess.envelopes import check_envelope, mismatch
-from sysid.core.guidelines import GUIDELINES
+from sysid.core.guidelines import BIAS_BOUNDS_MAX, GUIDELINES
+from sysid.assess.comparison import BIAS_MEANING, fidelity_scoreboard
+from sysid.identify.statistics import guideline_mark
+from sysid.spectral.response import NO_TRANSIENT_GROUP
 from sysid.core.units import CHANNELS, CONTROLS, STATES_6DOF
 from sysid.report.figures import Context
 from sysid.report.page import DASH, esc, html_table, not_available, num, slug, verdict_cell
@@ -35,7 +38,7 @@ from sysid.report.page import DASH, esc, html_table, not_available, num, slug, v
 __all__ = ["PAPER_PAIRS", "CONDITIONING_PAIRS", "PAIR_FIGURES", "TIME_FIGURES", "SECTIONS",
            "PairResult", "index", "section_trim", "section_inputs", "section_conditioning",
            "section_pairs", "section_time", "section_derivatives", "section_guidelines",
-           "section_reduction", "section_provenance"]
+           "section_reduction", "section_provenance", "section_fidelity", "ON_AXIS_PAIRS"]
 
 
 #: The paper's input/output pairs, in its order (section "Mathematical model structure").
@@ -43,6 +46,8 @@ PAPER_PAIRS = ("q/lon", "p/lon", "u/lon", "p/lat", "q/lat", "v/lat", "r/lat", "w
                "p/col", "q/col", "r/ped", "v/ped")
 
 
+#: The on-axis pairs, shown with and without leakage conditioning.
+ON_AXIS_PAIRS = ("q/lon", "p/lat", "w/col", "r/ped")
 #: Pairs shown in the conditioning figures (paper Figures 2-3): on-axis and cyclic coupling.
 CONDITIONING_PAIRS = ("q/lon", "p/lon", "p/lat", "q/lat", "w/col", "r/ped")
 
@@ -176,6 +181,7 @@ def section_conditioning(ctx: Context) -> str:
     else:
         parts.append(not_available("no /frequency_response_siso group: the unconditioned "
                                    "responses of Figures 2-3 cannot be shown"))
+    parts.append(_leakage(ctx, fr, lin))
     if pairs and "coherence" in fr and "partial_coherence" in fr:
         panels = {p: {"partial": fr["partial_coherence"].sel(output=p.split("/")[0],
                                                              input=p.split("/")[1]).values,
@@ -187,6 +193,45 @@ def section_conditioning(ctx: Context) -> str:
                                 plots.conditioning_figure, panels, omega, "coherence"))
     parts.append(_cross_coherence(ctx, fr if "cross_coherence" in fr else siso))
     return "".join(parts)
+
+
+def _leakage(ctx: Context, fr: xr.Dataset, lin: xr.Dataset | None) -> str:
+    """The on-axis composite responses with (the default) and without leakage conditioning
+    (``/frequency_response_no_transient``), one figure, with the truth linearisation."""
+    states = [str(c) for c in np.atleast_1d(fr.attrs.get("transient_states", []))]
+    plain = read.dataset(ctx.tree, NO_TRANSIENT_GROUP)
+    if not states:
+        return not_available("leakage conditioning was off for /frequency_response (the "
+                             "paper's plain conditioned estimate); no before/after figure")
+    if plain is None or "H" not in plain:
+        return not_available(f"no /{NO_TRANSIENT_GROUP} group: the responses without leakage "
+                             "conditioning were not kept")
+    omega = fr["frequency"].values
+    pairs = [p for p in ON_AXIS_PAIRS if p in _pairs_present(fr) and p in _pairs_present(plain)]
+    if not pairs:
+        return not_available("no on-axis pair in both response groups")
+    H = read.as_complex(fr["H"])
+    Hp = read.as_complex(plain["H"])
+    if not np.array_equal(plain["frequency"].values, omega):
+        Hp = Hp.interp(frequency=omega)
+    Hl = ctx.model_response(_TRUTH, lin, omega) if lin is not None else None
+    panels, coherence = {}, {}
+    for pair in pairs:
+        o, i = pair.split("/")
+        panels[pair] = {"leakage_free": H.sel(output=o, input=i).values,
+                        "plain": Hp.sel(output=o, input=i).values}
+        if Hl is not None and o in Hl.output.values and i in Hl.input.values:
+            panels[pair]["linearization"] = Hl.sel(output=o, input=i).values
+        coherence[pair] = fr["partial_coherence"].sel(output=o, input=i).values
+    text = (f"<p>Leakage-free conditioning (the default; docs/methods.md, \"Leakage-free "
+            f"conditioning\"): the taper-derivative transforms of the measured states "
+            f"{esc(', '.join(states))} join each segment's conditioning, removing the leakage "
+            f"of its start and end conditions. Below, the on-axis composite responses with it "
+            f"and without it (/{NO_TRANSIENT_GROUP}), where the default estimate's partial "
+            f"coherence is at least {GUIDELINES['coherence']:g}.</p>")
+    return text + ctx.figure("fig03a_leakage_before_after",
+                             "Composite on-axis responses with and without leakage "
+                             "conditioning", plots.leakage_figure, panels, omega, coherence)
 
 
 def _cross_coherence(ctx: Context, ds: xr.Dataset | None) -> str:
@@ -453,28 +498,40 @@ def _derivative_rows(ctx: Context, models: dict[str, xr.Dataset], kinds: tuple[s
             if matrix in kinds and shown and nm not in owner:
                 names.append(nm)
                 owner[nm] = m
+    corrected = {m: "cramer_rao_percent_corrected" in ds for m, ds in models.items()}
     header = ["parameter", "truth"]
     for m in models:
-        header += [f"{m}: value", f"{m}: CR %", f"{m}: I %"]
+        header += [f"{m}: value", f"{m}: CR %"]
+        header += [f"{m}: CRc %"] if corrected[m] else []
+        header += [f"{m}: I %", f"{m}: guidelines"]
     rows = []
     for nm in names:
         row = [nm, num(_truth_value(lin, nm, models[owner[nm]]))]
         for m, ds in models.items():
+            width = 5 if corrected[m] else 4
             if "parameter" not in ds.dims or nm not in ds["parameter"].values:
-                row += [DASH, DASH, DASH]
+                row += [DASH] * width
                 continue
             p = ds.sel(parameter=nm)
             free = bool(p["free"]) if "free" in ds else True
             value = float(p["value"])
             if nm in dropped[m]:
-                row += ["dropped", DASH, DASH]
+                row += ["dropped"] + [DASH] * (width - 1)
             elif not free:
-                row += [num(value) if value != 0.0 else DASH, "fixed", "fixed"]
+                row += [num(value) if value != 0.0 else DASH] + ["fixed"] * (width - 2) + [""]
             else:
                 cr = float(p["cramer_rao_percent"]) if "cramer_rao_percent" in ds else np.nan
                 ins = (float(p["insensitivity_percent"]) if "insensitivity_percent" in ds
                        else np.nan)
-                row += [num(value), num(cr, ".1f"), num(ins, ".1f")]
+                row += [num(value), num(cr, ".1f")]
+                worst = cr
+                if corrected[m]:
+                    crc = float(p["cramer_rao_percent_corrected"])
+                    row += [num(crc, ".1f")]
+                    worst = max(cr, crc) if np.isfinite(crc) else cr
+                mark = guideline_mark(worst, ins) if np.isfinite(cr) or np.isfinite(ins) else ""
+                row += [num(ins, ".1f"), f'<td class="fail">&#9888; {esc(mark)}</td>'
+                        if mark else ""]
         rows.append(row)
     return header, rows
 
@@ -486,9 +543,14 @@ def section_derivatives(ctx: Context) -> str:
     if not any("parameter" in m.dims for m in models.values()):
         return not_available("no identified models with parameters under /models")
     parts = ['<p>Values in analysis units (ft/s, deg/s, deg, % of travel; delays in s). '
-             'CR %: Cramer-Rao bound, I %: insensitivity, both in percent of |value|; '
+             'CR %: Cramer-Rao bound, I %: insensitivity, both in percent of |value| '
+             '(frequency domain: CIFER convention, docs/methods.md, "Accuracy"); CRc %: the '
+             'time-domain bound corrected for coloured residuals; '
              '"dropped": removed by model reduction; "fixed": held at the value shown; '
-             f'"{DASH}": not in that model.</p>']
+             f'"{DASH}": not in that model. &#9888; marks a parameter above the '
+             f'{GUIDELINES["cramer_rao_percent"]:g} % Cramer-Rao guideline (on the larger '
+             f'of CR % and CRc %) or the {GUIDELINES["insensitivity_percent"]:g} % '
+             'insensitivity guideline: poorly determined, whatever its value.</p>']
     for table_id, title, kinds in (
             ("table-derivatives-stability", "Table 2 — stability derivatives", ("A",)),
             ("table-derivatives-control", "Table 3 — control derivatives and time delays",
@@ -497,9 +559,65 @@ def section_derivatives(ctx: Context) -> str:
         anchor = table_id
         ctx.anchors[anchor] = title
         parts.append(f'<h3 id="{anchor}-title">{esc(title)}</h3>')
-        parts.append(html_table(header, rows, "numeric derivatives", table_id=anchor) if rows
+        parts.append(html_table(header, rows, "numeric derivatives", raw=True,
+                                table_id=anchor) if rows
                      else not_available(f"no parameters for {title}"))
     return "".join(parts)
+
+
+# -- Fidelity scoreboard ---------------------------------------------------------------------
+
+
+def section_fidelity(ctx: Context) -> str:
+    """Each identified derivative's error against the truth's quasi-steady linearisation in
+    units of its own bound (the corrected time-domain bound where the model has it), flagged
+    beyond :data:`~sysid.core.guidelines.BIAS_BOUNDS_MAX` bounds
+    (:func:`sysid.assess.comparison.fidelity_scoreboard`)."""
+    models = {m: ds for m, ds in read.models(ctx.tree).items()
+              if "parameter" in ds.dims and "cramer_rao" in ds}
+    if not models:
+        return not_available("no identified models with bounds under /models")
+    truth = read.dataset(ctx.tree, "linearization")
+    if truth is None:
+        return not_available("no truth linearisation (/linearization): the scoreboard needs a "
+                             "truth to measure the errors against")
+    board = fidelity_scoreboard(models, truth)
+    names = [str(n) for n in board.parameter.values
+             if np.isfinite(float(board["truth"].sel(parameter=n)))]
+    header = ["parameter", "truth"]
+    for m in models:
+        header += [f"{m}: value", f"{m}: bound", f"{m}: error / bound", f"{m}: flag"]
+    rows, flagged = [], {m: [] for m in models}
+    for nm in names:
+        row = [nm, num(float(board["truth"].sel(parameter=nm)))]
+        for m in models:
+            cell = board.sel(parameter=nm, model=m)
+            if not np.isfinite(float(cell["value"])):
+                row += [DASH, DASH, DASH, ""]
+                continue
+            kind = str(cell["bound_kind"].values)
+            flag = bool(cell["bias_flag"])
+            if flag:
+                flagged[m].append(nm)
+            row += [num(float(cell["value"])),
+                    num(float(cell["bound"]), ".3g") + (" (corrected)" if kind == "corrected"
+                                                         else ""),
+                    num(float(cell["error_in_bounds"]), ".1f"),
+                    f'<td class="fail">&#9888; {esc(BIAS_MEANING)}</td>' if flag else ""]
+        rows.append(row)
+    ctx.anchors["table-fidelity"] = "Fidelity scoreboard"
+    summary = "; ".join(f"{esc(m)}: {len(v)} of "
+                        f"{int(np.isfinite(board['error_in_bounds'].sel(model=m)).sum())} "
+                        f"flagged" + (f" ({esc(', '.join(v))})" if v else "")
+                        for m, v in flagged.items())
+    text = (f"<p>Each identified derivative against the truth model's quasi-steady "
+            f"linearisation, the error in units of the estimate's own one-sigma bound (the "
+            f"time-domain bound corrected for coloured residuals where the model carries it, "
+            f"else the plain Cramer-Rao bound; frequency domain: CIFER convention). &#9888; "
+            f"where the error exceeds {BIAS_BOUNDS_MAX:g} bounds: the noise cannot explain "
+            f"it, so the model structure or the data are the cause. {summary}.</p>")
+    return text + html_table(header, rows, "numeric fidelity", raw=True,
+                             table_id="table-fidelity")
 
 
 # -- Guidelines ------------------------------------------------------------------------------
@@ -683,6 +801,7 @@ SECTIONS = (
     ("pairs", "Input/output pairs", "Figures 4-15"),
     ("time", "Time-domain verification", "Figures 16-19"),
     ("derivatives", "Derivatives", "Tables 2-3"),
+    ("fidelity", "Fidelity scoreboard", ""),
     ("guidelines", "Cost and guideline summary", ""),
     ("reduction", "Model reduction", ""),
     ("handling_qualities", "Handling qualities (ADS-33E-PRF) and hold margins", ""),
