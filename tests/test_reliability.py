@@ -298,7 +298,8 @@ def test_output_naming_a_directory(tmp_path):
     path = campaign(tmp_path / "c.nc")
     for argv in (["import", csv_file(tmp_path / "3211_lon_1.csv"), "-o", folder],
                  ["export-csv", path, "sweep_lon_1", "-o", folder],
-                 ["frequency-response", folder, "--inputs", "lon", "--outputs", "q"]):
+                 ["frequency-response", folder, "--inputs", "lon", "--outputs", "q"],
+                 ["simulate", "-o", folder, "--no-noise"]):
         code, _, err = run_cli(argv)
         assert code == 1 and "is a directory" in err, (argv, err)
     with pytest.raises(InputDataError, match="is a directory"):

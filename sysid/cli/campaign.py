@@ -34,6 +34,9 @@ def register(subparsers) -> None:
 
 
 def _simulate(args) -> int:
+    if Path(args.output).is_dir():  # said before flying, not after
+        raise InputDataError(f"-o {args.output} is a directory; expected a campaign file name "
+                             "(e.g. -o campaign.nc)")
     if args.campaign:
         for flag, given in (("--speed", args.speed is not None),
                             ("--linear-regime", args.linear_regime)):
