@@ -25,10 +25,12 @@ from sysid.cli import main
 from sysid.core import paths
 from sysid.core.errors import FMUError, IdentificationError, InputDataError
 from sysid.core.units import PHYSICAL_RANGE, physical_range
+from sysid.core.util import Progress
 from sysid.data import netcdf
 from sysid.data.importers import read_time_history, validate_time_history
 from sysid.identify import identify_frequency_domain, identify_time_domain
 from sysid.models.toml import load_structure
+from sysid.spectral.response import frequency_response
 
 
 def run_cli(argv) -> tuple[int, str, str]:
@@ -189,6 +191,32 @@ def test_collinear_inputs_are_named_and_no_response_is_written(tmp_path):
     assert code == 1, err
     assert "inputs lon, lat are collinear" in err and "rad/s" in err
     assert path.read_bytes() == before
+
+
+def test_partly_collinear_inputs_are_reported_with_their_band():
+    """lat = 2 lon plus an independent part above 6 rad/s only: collinear below (H NaN
+    there, said in a warning and the ``collinear_note`` attribute), usable above."""
+    rng = np.random.default_rng(3)
+    n, dt = 6000, 0.02
+    w = 2 * np.pi * np.fft.rfftfreq(n, dt)
+    records = {}
+    for k in range(2):
+        x1, e2 = rng.standard_normal(n), np.fft.rfft(rng.standard_normal(n))
+        e2[w < 6.0] = 0
+        x2 = 2 * x1 + np.fft.irfft(e2, n)
+        records[f"sweep_{k}"] = xr.Dataset(
+            {"lon": ("time", x1), "lat": ("time", x2),
+             "q": ("time", x1 + 0.5 * x2 + 0.1 * rng.standard_normal(n))},
+            coords={"time": np.arange(n) * dt})
+    log = io.StringIO()
+    fr = frequency_response(records, ["lon", "lat"], ["q"], windows=[4, 8], n_frequencies=40,
+                            transient_states=(), progress=Progress(stream=log))
+    flagged = fr["frequency"].values[fr["collinear"].values]
+    assert 0 < flagged.size < fr.sizes["frequency"] and flagged.max() < 6.0
+    assert bool(fr["H"].sel(frequency=flagged).isnull().all())
+    assert bool(np.isfinite(fr["H"].sel(frequency=fr["frequency"] > 8.0)).all())
+    assert fr.attrs["collinear_note"].startswith("inputs lon, lat are collinear")
+    assert "warning: inputs lon, lat are collinear" in log.getvalue()
 
 
 def test_identify_names_collinearity_when_no_pair_is_coherent():
