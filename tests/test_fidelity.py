@@ -1,0 +1,74 @@
+"""The fidelity scoreboard (issue 21): each estimate's error against a known truth in units of
+its own bound, flagged beyond 3 bounds; its text form (``sysid compare``) and its report
+section with the guideline marks of the derivative tables.
+
+The models are built by hand, so the expected errors in bounds are known exactly.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import xarray as xr
+
+from sysid.assess.comparison import BIAS_MEANING, fidelity_scoreboard, format_scoreboard
+from sysid.core.guidelines import BIAS_BOUNDS_MAX
+
+NAMES = ["Z_w", "M_q", "tau_M_lon"]
+TRUTH = xr.Dataset({"value": ("parameter", [-0.30, -3.0])},
+                   coords={"parameter": ["Z_w", "M_q"]})
+
+
+def model(method, value, bound, corrected=None, free=(True, True, True)):
+    ds = xr.Dataset({"value": ("parameter", np.asarray(value, float)),
+                     "free": ("parameter", np.asarray(free)),
+                     "cramer_rao": ("parameter", np.asarray(bound, float)),
+                     "cramer_rao_percent": ("parameter",
+                                            100 * np.abs(np.asarray(bound) / np.asarray(value)))},
+                    coords={"parameter": NAMES}, attrs={"method": method})
+    if corrected is not None:
+        ds["cramer_rao_corrected"] = ("parameter", np.asarray(corrected, float))
+    return ds
+
+
+def test_errors_are_measured_in_the_bound_each_model_reports():
+    fd = model("frequency_domain", [-0.325, -3.9, 0.1], [0.01, 0.2, 0.01])
+    # time domain: the corrected bound where finite, else the white-noise one
+    td = model("time_domain", [-0.40, -3.1, 0.1], [0.01, 0.01, 0.01],
+               corrected=[0.05, np.nan, 0.02])
+    board = fidelity_scoreboard({"frequency_domain": fd, "time_domain": td}, TRUTH)
+    z = board["error_in_bounds"]
+    np.testing.assert_allclose(z.sel(model="frequency_domain", parameter="Z_w"), 2.5)
+    np.testing.assert_allclose(z.sel(model="frequency_domain", parameter="M_q"), 4.5)
+    np.testing.assert_allclose(z.sel(model="time_domain", parameter="Z_w"), 2.0)   # 0.1 / 0.05
+    np.testing.assert_allclose(z.sel(model="time_domain", parameter="M_q"), 10.0)  # white bound
+    kinds = board["bound_kind"].sel(parameter="Z_w").values.tolist()
+    assert kinds == ["cifer", "corrected"]
+    assert str(board["bound_kind"].sel(model="time_domain", parameter="M_q").values) == "white"
+    flag = board["bias_flag"]
+    # 2.5 and 2 bounds are within the threshold; 4.5 and 10 are beyond it
+    assert not bool(flag.sel(model="frequency_domain", parameter="Z_w"))
+    assert bool(flag.sel(model="frequency_domain", parameter="M_q"))
+    assert bool(flag.sel(model="time_domain", parameter="M_q"))
+    assert not bool(flag.sel(model="time_domain", parameter="Z_w"))
+    # no truth for the delay: no error, no flag
+    assert np.isnan(float(z.sel(model="time_domain", parameter="tau_M_lon")))
+    assert not bool(flag.sel(parameter="tau_M_lon").any())
+    assert board.attrs["bias_bounds_max"] == BIAS_BOUNDS_MAX == 3.0
+    text = format_scoreboard(board)
+    assert BIAS_MEANING in text and "flagged: frequency_domain 1, time_domain 1" in text
+    row = next(line for line in text.splitlines() if line.startswith("M_q"))
+    assert row.count("!") == 2
+
+
+def test_a_parameter_one_model_does_not_estimate_is_left_blank():
+    fd = model("frequency_domain", [-0.31, -3.5, 0.1], [0.01, 0.1, 0.01],
+               free=(True, False, True))
+    td = model("time_domain", [-0.31, -3.5, 0.1], [0.01, 0.1, 0.01])
+    board = fidelity_scoreboard({"frequency_domain": fd, "time_domain": td}, TRUTH)
+    assert np.isnan(float(board["value"].sel(parameter="M_q", model="frequency_domain")))
+    assert not bool(board["bias_flag"].sel(parameter="M_q", model="frequency_domain"))
+    assert bool(board["bias_flag"].sel(parameter="M_q", model="time_domain"))      # 5 bounds
+    np.testing.assert_allclose(board["error_in_bounds"].sel(parameter="Z_w"), 1.0)
+    # a parameter no model estimates is not on the board
+    alone = fidelity_scoreboard({"frequency_domain": fd}, TRUTH)
+    assert "M_q" not in alone.parameter.values
