@@ -58,8 +58,9 @@ TIC_MAX = 0.25
 # -- iterative fits ---------------------------------------------------------------------------
 #: Wall-clock bound (s) of one identification (fit, restarts and model reduction) in either
 #: domain; a fit that needs more is stopped with a message (not a guideline: a safety bound,
-#: some 20x the hover study's slowest fit on a busy 2-core machine). Each least-squares
-#: solve is also bounded in iterations (``max_nfev``, scipy's default 100 per parameter).
+#: well above the hover study's fits, which take tens of seconds and took 198 s on an
+#: overloaded 2-core machine, see sysid.core.util.blas_threads). Each least-squares solve is
+#: also bounded in iterations (``max_nfev``, scipy's default 100 per parameter).
 FIT_TIME_LIMIT_S = 1800.0
 
 #: The guidelines by the names the HTML report shows them under.
