@@ -584,3 +584,45 @@ def test_report_processes_setting(monkeypatch):
     monkeypatch.setattr(multiprocessing.current_process(), "_config",
                         {**multiprocessing.current_process()._config, "daemon": True})
     assert report_processes() == 1   # a daemonic process (a Dask worker) may not fork
+
+
+def test_guideline_marks_and_fidelity_scoreboard(report, campaign):
+    """Every free parameter above the 20 % Cramer-Rao or 10 % insensitivity guideline carries
+    a mark in the derivative tables, and no other; the fidelity scoreboard flags exactly the
+    estimates further than 3 of their bounds from the truth (issue 21)."""
+    lin, models = campaign["lin"], campaign["models"]
+    marked = 0
+    for tid in ("table-derivatives-stability", "table-derivatives-control"):
+        header, rows = _rows(report["tables"][tid])
+        for r in rows:
+            text = [c["text"] for c in r["cells"]]
+            for m, ds in models.items():
+                k = header.index(f"{m}: guidelines")
+                if text[header.index(f"{m}: value")] == "dropped":
+                    continue
+                cr = float(ds.cramer_rao_percent.sel(parameter=text[0]))
+                ins = float(ds.insensitivity_percent.sel(parameter=text[0]))
+                expected = not (cr <= 20.0 and ins <= 10.0)
+                assert bool(text[k].strip()) == expected, (text[0], m, cr, ins, text[k])
+                marked += expected
+    assert marked > 0
+    header, rows = _rows(report["tables"]["table-fidelity"])
+    flagged = 0
+    for r in rows:
+        text = [c["text"] for c in r["cells"]]
+        truth = float(lin.value.sel(parameter=text[0]))
+        for m, ds in models.items():
+            if text[header.index(f"{m}: value")] == "—":
+                continue
+            bound = float(ds.cramer_rao.sel(parameter=text[0]))
+            if not bound > 0:        # no bound (e.g. held parameters): no score, no flag
+                assert not text[header.index(f"{m}: flag")].strip()
+                continue
+            z = abs(float(ds.value.sel(parameter=text[0])) - truth) / bound
+            assert float(text[header.index(f"{m}: error / bound")]) == pytest.approx(z, abs=0.051)
+            flag = bool(text[header.index(f"{m}: flag")].strip())
+            assert flag == (z > 3.0), (text[0], m, z)
+            flagged += flag
+    assert flagged > 0 and "bias beyond noise" in report["html"]
+    # no /frequency_response_no_transient in this campaign: the before/after figure says so
+    assert "leakage" in report["html"] and "fig03a_leakage_before_after" not in report["html"]

@@ -129,7 +129,7 @@ def fidelity_scoreboard(models: Mapping[str, xr.Dataset], truth: xr.Dataset | No
             plain[i, j], bound[i, j], kind[i, j] = _bound(model, k)
     error = table["value"] - table["truth"]
     with np.errstate(divide="ignore", invalid="ignore"):
-        z = np.abs(error.values) / bound
+        z = np.where(bound > 0, np.abs(error.values) / bound, np.nan)   # no bound: no score
     dims = ("parameter", "model")
     return xr.Dataset(
         {
