@@ -736,6 +736,10 @@ class TimeFitResult(FitResultParameters):
     n_cost_evaluations, n_jacobian_evaluations, n_outer_iterations : int
     elapsed : float
         Wall time, s.
+    coloured : ColouredBounds or None
+        Bounds of the free parameters corrected for coloured residuals (Morelli & Klein;
+        :func:`sysid.identify.statistics.coloured_residual_covariance`), also in ``model`` as
+        ``cramer_rao_corrected`` and ``cramer_rao_percent_corrected``.
     """
 
     model: xr.Dataset
