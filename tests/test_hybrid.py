@@ -77,3 +77,120 @@ def test_hybrid_truth_reduces_to_the_quasi_steady_linearisation(hover_lin, hover
     ev_f = np.sort(np.abs(hover_lin.eigenvalues_full))
     for e in ev_h[ev_h > 0.1]:
         assert np.min(np.abs(ev_f - e)) < 0.03 * e, e
+
+
+# --- The hybrid chain on the hover study's campaign (issue 22, "Must show") ------------------
+# Both domains' hover_hybrid fits as `sysid run hover --structure hover_hybrid` runs them, on the
+# session's hover campaign (seed 20261121), against the truth for that structure. Only the
+# figures met on that campaign are asserted; the misses (frequency domain: equivalent L_p
+# -17 %, 2311 J_rms on col and ped; time domain: most derivatives, the lateral flapping time
+# constant) are measured in docs/notes/2026-11-24-hover-hybrid-flapping-structure.md.
+
+HYBRID = "hover_hybrid"
+RIGID = ["u", "v", "w", "p", "q", "r", "phi", "theta", "psi"]
+#: Issue 22's targets: derivatives and domain agreement, flapping time constant, J_ave, J_rms.
+DERIVATIVE_TOL, TAU_F_TOL, J_AVE_MAX, J_RMS_MAX = 0.15, 0.20, 50.0, 1.0
+
+
+def _figures(model):
+    """The issue's derivatives (L_p, M_q, L_lat, M_lon as quasi-steady equivalents with the
+    flapping residualised) and the flapping time constants -1/A[a1,a1], -1/A[b1,b1] (s)."""
+    A, B = model["A"].to_pandas(), model["B"].to_pandas()
+    qs = residualize_model(model, RIGID)
+    Aq, Bq = qs["A"].to_pandas(), qs["B"].to_pandas()
+    return {"L_p": Aq.loc["p", "p"], "M_q": Aq.loc["q", "q"], "L_lat": Bq.loc["p", "lat"],
+            "M_lon": Bq.loc["q", "lon"], "Z_w": A.loc["w", "w"], "Z_col": B.loc["w", "col"],
+            "N_r": A.loc["r", "r"], "N_ped": B.loc["r", "ped"],
+            "tau_a1": -1.0 / A.loc["a1", "a1"], "tau_b1": -1.0 / A.loc["b1", "b1"]}
+
+
+@pytest.fixture(scope="module")
+def hybrid_campaign(hover_study):
+    from sysid.data.campaign import CampaignData
+
+    return CampaignData(hover_study["tree"], source="hover study")
+
+
+@pytest.fixture(scope="module")
+def hybrid_truth(hybrid_campaign):
+    from sysid.truth.linearize import truth_for_structure
+
+    st = load_structure(HYBRID, trim=hybrid_campaign.trim())
+    return _figures(truth_for_structure(
+        hybrid_campaign.tree["linearization_full"].to_dataset(), st))
+
+
+@pytest.fixture(scope="module")
+def hybrid_fd(hybrid_campaign):
+    from sysid.identify.stages import fit_frequency_domain
+    from sysid.pipeline.study import StudySettings
+
+    return fit_frequency_domain(hybrid_campaign, structure=HYBRID,
+                                coherence_min=StudySettings(structure=HYBRID).fd_coherence)
+
+
+@pytest.fixture(scope="module")
+def hybrid_td(hybrid_campaign):
+    from sysid.identify.stages import fit_time_domain
+    from sysid.pipeline.study import StudySettings
+
+    return fit_time_domain(hybrid_campaign, structure=HYBRID, start="linearization",
+                           maneuvers=StudySettings(structure=HYBRID).time_domain_maneuvers)
+
+
+def _verification(campaign, models):
+    """J_rms (maneuver -> method -> value) of ``models`` on the 2311s, verified afresh."""
+    import xarray as xr
+
+    from sysid.assess.stages import verify_models
+    from sysid.data.campaign import CampaignData
+
+    tree = campaign.tree.copy()
+    if "verification" in tree.children:
+        del tree["verification"]
+    for method, model in models.items():
+        tree[f"models/{method}"] = xr.DataTree(model)
+    checked = verify_models(CampaignData(tree, source="hover study, hybrid models"),
+                            models=list(models), maneuvers="2311_*")
+    return {name: {str(s): float(j) for s, j in zip(ds.source.values, ds["j_rms"].values)}
+            for name, ds in checked.items()}
+
+
+def _error(value, truth):
+    return abs(value / truth - 1.0)
+
+
+def test_frequency_domain_hybrid_meets_the_targets_it_meets(hybrid_fd, hybrid_truth,
+                                                           hybrid_campaign):
+    """Frequency-domain hover_hybrid over 0.3-20 rad/s: J_ave <= 50, seven of the eight
+    derivatives within 15 % and both flapping time constants within 20 % of the truth."""
+    assert hybrid_fd.J_ave <= J_AVE_MAX
+    # the wider band: the on-axis rate pairs fitted across the flap-roll mode (> 15 rad/s)
+    data = hybrid_fd.data
+    for pair in (("q", "lon"), ("p", "lat")):
+        assert data.omega[data.pair_index == data.pairs.index(pair)].max() > 15.0, pair
+    got = _figures(hybrid_fd.model)
+    for name in ("M_q", "L_lat", "M_lon", "Z_w", "Z_col", "N_r", "N_ped"):
+        assert _error(got[name], hybrid_truth[name]) <= DERIVATIVE_TOL, \
+            (name, got[name], hybrid_truth[name])
+    for name in ("tau_a1", "tau_b1"):
+        assert _error(got[name], hybrid_truth[name]) <= TAU_F_TOL, \
+            (name, got[name], hybrid_truth[name])
+    j = _verification(hybrid_campaign, {"frequency_domain": hybrid_fd.model})
+    for name in ("2311_lon", "2311_lat"):
+        assert j[name]["frequency_domain"] <= J_RMS_MAX, (name, j[name])
+
+
+@pytest.mark.slow  # the 38-parameter output-error fit takes about 3 min on 2 shared cores
+def test_time_domain_hybrid_meets_the_targets_it_meets(hybrid_td, hybrid_fd, hybrid_truth,
+                                                      hybrid_campaign):
+    """Time-domain hover_hybrid on the 3211s: N_ped within 15 % of the truth, the two domains
+    within 15 % of each other on N_r and N_ped, 2311 J_rms <= 1 on every axis."""
+    td, fd = _figures(hybrid_td.model), _figures(hybrid_fd.model)
+    assert _error(td["N_ped"], hybrid_truth["N_ped"]) <= DERIVATIVE_TOL
+    for name in ("N_r", "N_ped"):
+        assert _error(fd[name], td[name]) <= DERIVATIVE_TOL, (name, fd[name], td[name])
+    j = _verification(hybrid_campaign, {"time_domain": hybrid_td.model})
+    assert set(j) == {"2311_lon", "2311_lat", "2311_col", "2311_ped"}
+    for name, per_source in j.items():
+        assert per_source["time_domain"] <= J_RMS_MAX, (name, per_source)
