@@ -321,6 +321,8 @@ def test_every_figure_is_a_png_file_and_embedded(report, campaign):
     expected |= {f"time_{v}" for v in campaign["verification"]}
     expected |= {"fig02_conditioning_magnitude", "fig03_conditioning_phase",
                  "fig03b_partial_vs_ordinary_coherence", "fig03c_cross_control_coherence"}
+    # the ADS-33E-PRF chart, computed from /frequency_response when no group is stored
+    expected |= {"handling_qualities_ads33"}
     assert names == expected
     for p in figs:
         w, h = _png_size(p)
