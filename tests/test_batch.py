@@ -1,6 +1,7 @@
 """sysid.pipeline.batch: many flight conditions on a Dask LocalCluster, fault tolerance, resume.
 
-The default run flies one reduced (``quick``) 100-kt condition, one impossible one (400 kt:
+The default run flies one reduced (``quick``) 100-kt condition, two quick hover seeds (the
+reduced form of the bounds' Monte Carlo calibration), one impossible one (400 kt:
 the trim refuses it), one with an injected divergence and one whose identification stages
 fail on a structure file with a typo (its exception must reach batch.nc) on a 2-worker
 LocalCluster (one study takes about a minute of CPU); the exhaustive form
