@@ -8,10 +8,16 @@ the original path, and the flapping normalisation of truth_for_structure.
 
 import numpy as np
 import pytest
+import xarray as xr
 
+from sysid.assess.stages import verify_models
 from sysid.core.kinematics import rigid_body_terms
 from sysid.core.units import STATES_6DOF
+from sysid.data.campaign import CampaignData
+from sysid.identify.stages import fit_frequency_domain, fit_time_domain
 from sysid.models import load_structure, residualize_model
+from sysid.pipeline.study import StudySettings
+from sysid.truth.linearize import truth_for_structure
 
 pytestmark = pytest.mark.fmu
 
@@ -81,10 +87,11 @@ def test_hybrid_truth_reduces_to_the_quasi_steady_linearisation(hover_lin, hover
 
 # --- The hybrid chain on the hover study's campaign (issue 22, "Must show") ------------------
 # Both domains' hover_hybrid fits as `sysid run hover --structure hover_hybrid` runs them, on the
-# session's hover campaign (seed 20261121), against the truth for that structure. Only the
-# figures met on that campaign are asserted; the misses (frequency domain: equivalent L_p
-# -17 %, 2311 J_rms on col and ped; time domain: most derivatives, the lateral flapping time
-# constant) are measured in docs/notes/2026-11-24-hover-hybrid-flapping-structure.md.
+# session's hover campaign (seed 20261121), against the truth for that structure. Asserted:
+# the figures met on that campaign and on seeds 1 and 2 as well; the misses (frequency domain:
+# equivalent L_p, 2311 J_rms; time domain: most derivatives, Z_w and Z_col on every seed) and
+# the figures met on some seeds only (frequency-domain N_r, 2311 lon/lat) are measured in
+# docs/notes/2026-11-24-hover-hybrid-flapping-structure.md.
 
 HYBRID = "hover_hybrid"
 RIGID = ["u", "v", "w", "p", "q", "r", "phi", "theta", "psi"]
@@ -106,15 +113,11 @@ def _figures(model):
 
 @pytest.fixture(scope="module")
 def hybrid_campaign(hover_study):
-    from sysid.data.campaign import CampaignData
-
     return CampaignData(hover_study["tree"], source="hover study")
 
 
 @pytest.fixture(scope="module")
 def hybrid_truth(hybrid_campaign):
-    from sysid.truth.linearize import truth_for_structure
-
     st = load_structure(HYBRID, trim=hybrid_campaign.trim())
     return _figures(truth_for_structure(
         hybrid_campaign.tree["linearization_full"].to_dataset(), st))
@@ -122,29 +125,18 @@ def hybrid_truth(hybrid_campaign):
 
 @pytest.fixture(scope="module")
 def hybrid_fd(hybrid_campaign):
-    from sysid.identify.stages import fit_frequency_domain
-    from sysid.pipeline.study import StudySettings
-
     return fit_frequency_domain(hybrid_campaign, structure=HYBRID,
                                 coherence_min=StudySettings(structure=HYBRID).fd_coherence)
 
 
 @pytest.fixture(scope="module")
 def hybrid_td(hybrid_campaign):
-    from sysid.identify.stages import fit_time_domain
-    from sysid.pipeline.study import StudySettings
-
     return fit_time_domain(hybrid_campaign, structure=HYBRID, start="linearization",
                            maneuvers=StudySettings(structure=HYBRID).time_domain_maneuvers)
 
 
 def _verification(campaign, models):
     """J_rms (maneuver -> method -> value) of ``models`` on the 2311s, verified afresh."""
-    import xarray as xr
-
-    from sysid.assess.stages import verify_models
-    from sysid.data.campaign import CampaignData
-
     tree = campaign.tree.copy()
     if "verification" in tree.children:
         del tree["verification"]
@@ -160,9 +152,8 @@ def _error(value, truth):
     return abs(value / truth - 1.0)
 
 
-def test_frequency_domain_hybrid_meets_the_targets_it_meets(hybrid_fd, hybrid_truth,
-                                                           hybrid_campaign):
-    """Frequency-domain hover_hybrid over 0.3-20 rad/s: J_ave <= 50, seven of the eight
+def test_frequency_domain_hybrid_meets_the_targets_it_meets(hybrid_fd, hybrid_truth):
+    """Frequency-domain hover_hybrid over 0.3-20 rad/s: J_ave <= 50, six of the eight
     derivatives within 15 % and both flapping time constants within 20 % of the truth."""
     assert hybrid_fd.J_ave <= J_AVE_MAX
     # the wider band: the on-axis rate pairs fitted across the flap-roll mode (> 15 rad/s)
@@ -170,18 +161,15 @@ def test_frequency_domain_hybrid_meets_the_targets_it_meets(hybrid_fd, hybrid_tr
     for pair in (("q", "lon"), ("p", "lat")):
         assert data.omega[data.pair_index == data.pairs.index(pair)].max() > 15.0, pair
     got = _figures(hybrid_fd.model)
-    for name in ("M_q", "L_lat", "M_lon", "Z_w", "Z_col", "N_r", "N_ped"):
+    for name in ("M_q", "L_lat", "M_lon", "Z_w", "Z_col", "N_ped"):
         assert _error(got[name], hybrid_truth[name]) <= DERIVATIVE_TOL, \
             (name, got[name], hybrid_truth[name])
     for name in ("tau_a1", "tau_b1"):
         assert _error(got[name], hybrid_truth[name]) <= TAU_F_TOL, \
             (name, got[name], hybrid_truth[name])
-    j = _verification(hybrid_campaign, {"frequency_domain": hybrid_fd.model})
-    for name in ("2311_lon", "2311_lat"):
-        assert j[name]["frequency_domain"] <= J_RMS_MAX, (name, j[name])
 
 
-@pytest.mark.slow  # the 38-parameter output-error fit takes about 3 min on 2 shared cores
+@pytest.mark.slow  # the 38-parameter output-error fit: 1-5 min on 2 shared cores (measured)
 def test_time_domain_hybrid_meets_the_targets_it_meets(hybrid_td, hybrid_fd, hybrid_truth,
                                                       hybrid_campaign):
     """Time-domain hover_hybrid on the 3211s: N_ped within 15 % of the truth, the two domains
