@@ -16,7 +16,9 @@ Coherence used: the ``partial_coherence`` of the composite Dataset when present 
 the linear dependence of the output on the *conditioned* input, i.e. the quality of the
 conditioned MIMO response ``H`` that is fitted, paper Eq. 11), else the ordinary
 ``coherence`` (Eq. 7). Its range ``>= coherence_min`` (default 0.6, the paper's guideline)
-selects the fitted band: the longest run of consecutive frequencies meeting it.
+selects the fitted band: the longest run of consecutive frequencies meeting it that spans at
+least the frequency resolution ``2 pi / T_max`` of the longest window (a narrower run holds
+less than two independent spectral estimates; :func:`frequency_resolution`).
 
 Minimisation: :func:`scipy.optimize.least_squares` on the residual vector
 ``r = sqrt((20/n) W_gamma) [ W_g^1/2 (dB error), W_p^1/2 (phase error, deg) ]`` (so
@@ -73,6 +75,7 @@ __all__ = [
     "DEFAULT_PAIRS",
     "W_G",
     "W_P",
+    "frequency_resolution",
     "coherence_weight",
     "parse_pairs",
     "FitData",
@@ -191,16 +194,32 @@ class FitData:
         return 10.0 ** (self.mag_db / 20.0) * np.exp(1j * np.deg2rad(self.phase_deg))
 
 
-def _longest_run(mask: np.ndarray) -> tuple[int, int] | None:
+def _longest_run(mask: np.ndarray, omega: np.ndarray | None = None,
+                 min_width: float = 0.0) -> tuple[int, int] | None:
+    """Longest run of consecutive ``True`` (``(start, stop)`` indices) among the runs that
+    span at least ``min_width`` rad/s of ``omega``."""
     best, start, best_len = None, None, 0
     for k, ok in enumerate(list(mask) + [False]):
         if ok and start is None:
             start = k
         elif not ok and start is not None:
-            if k - start > best_len:
+            wide = omega is None or omega[k - 1] - omega[start] >= min_width
+            if wide and k - start > best_len:
                 best, best_len = (start, k), k - start
             start = None
     return best
+
+
+def frequency_resolution(fr: xr.Dataset) -> float:
+    """Spacing of independent spectral estimates of the longest window, ``2 pi / T_max``
+    (rad/s); 0 when the Dataset does not record its windows (attribute ``windows``, s).
+
+    A coherent run narrower than this holds less than two independent estimates (one Hann
+    main lobe): its interpolated points are not independent data, so it is not fitted.
+    """
+    windows = np.atleast_1d(np.asarray(fr.attrs.get("windows", []), dtype=float))
+    windows = windows[np.isfinite(windows) & (windows > 0)]
+    return 2.0 * math.pi / float(windows.max()) if windows.size else 0.0
 
 
 def select_fit_data(fr: xr.Dataset, pairs=None, *, coherence_min: float = COHERENCE_MIN,
@@ -219,7 +238,8 @@ def select_fit_data(fr: xr.Dataset, pairs=None, *, coherence_min: float = COHERE
         ``"q/lon,p/lat"`` etc.; default :data:`DEFAULT_PAIRS`.
     coherence_min : float
         Pairs are fitted over the longest run of consecutive frequencies with
-        ``gamma^2 >= coherence_min`` (default 0.6).
+        ``gamma^2 >= coherence_min`` (default 0.6) that spans at least
+        :func:`frequency_resolution` of ``fr``.
     n_points : int
         Log-spaced points per pair over that range (default 20); the measured magnitude (dB),
         unwrapped phase and coherence are interpolated linearly in log frequency.
@@ -255,6 +275,7 @@ def select_fit_data(fr: xr.Dataset, pairs=None, *, coherence_min: float = COHERE
     omega_all = np.asarray(fr["frequency"].values, dtype=float)
     order = np.argsort(omega_all)
     omega_all = omega_all[order]
+    resolution = frequency_resolution(fr)
     ranges = dict(ranges or {})
     outputs = [str(x) for x in fr["output"].values]
     inputs = [str(x) for x in fr["input"].values]
@@ -274,14 +295,15 @@ def select_fit_data(fr: xr.Dataset, pairs=None, *, coherence_min: float = COHERE
         for lim in (frequency_range, ranges.get(name)):
             if lim is not None:
                 valid &= (omega_all >= lim[0]) & (omega_all <= lim[1])
-        run = _longest_run(valid & (g2 >= coherence_min))
+        run = _longest_run(valid & (g2 >= coherence_min), omega_all, resolution)
         if (run is None or run[1] - run[0] < 2) and fallback_coherence_min is not None:
-            run = _longest_run(valid & (g2 >= fallback_coherence_min))
+            run = _longest_run(valid & (g2 >= fallback_coherence_min), omega_all, resolution)
             if run is not None and run[1] - run[0] >= 2:
                 weak[name] = float(fallback_coherence_min)
         if run is None or run[1] - run[0] < 2:
-            skipped[name] = f"no coherent range (coherence {cvar} >= {coherence_min} at fewer " \
-                            f"than 2 consecutive frequencies)"
+            skipped[name] = (f"no coherent range (coherence {cvar} >= {coherence_min} at fewer "
+                             f"than 2 consecutive frequencies, or over less than the "
+                             f"resolution {resolution:.3g} rad/s of the longest window)")
             continue
         sl = slice(*run)
         w = omega_all[sl]
