@@ -13,7 +13,7 @@ structure or data problem. :func:`compare_models` builds a campaign's ``/compari
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +28,17 @@ from sysid.truth.linearize import truth_for_structure
 
 #: The derivatives that dominate the hover dynamics (damping and on-axis control power).
 DOMINANT = ("Z_w", "M_q", "L_p", "N_r", "M_lon", "L_lat", "Z_col", "N_ped")
+
+
+def _free_entries(models: Mapping[str, xr.Dataset], names: Sequence[str]):
+    """``(row, column, model, index)`` of every free parameter ``names[row]`` of the
+    ``column``-th model (``index`` into its ``parameter`` dimension)."""
+    for j, model in enumerate(models.values()):
+        present = {str(p): k for k, p in enumerate(model.parameter.values)}
+        for i, name in enumerate(names):
+            k = present.get(name)
+            if k is not None and bool(model["free"].values[k]):
+                yield i, j, model, k
 
 
 def derivative_table(models: Mapping[str, xr.Dataset], truth: xr.Dataset | None = None
@@ -48,15 +59,10 @@ def derivative_table(models: Mapping[str, xr.Dataset], truth: xr.Dataset | None 
     value = np.full((len(names), len(methods)), np.nan)
     cr = np.full_like(value, np.nan)
     free = np.zeros_like(value, dtype=bool)
-    for j, model in enumerate(models.values()):
-        present = {str(p): k for k, p in enumerate(model.parameter.values)}
-        for i, name in enumerate(names):
-            k = present.get(name)
-            if k is None or not bool(model["free"].values[k]):
-                continue
-            free[i, j] = True
-            value[i, j] = float(model["value"].values[k])
-            cr[i, j] = float(model["cramer_rao_percent"].values[k])
+    for i, j, model, k in _free_entries(models, names):
+        free[i, j] = True
+        value[i, j] = float(model["value"].values[k])
+        cr[i, j] = float(model["cramer_rao_percent"].values[k])
     truth_values = parameter_values(truth, names)
     coords = {"parameter": names, "model": methods}
     return xr.Dataset(
@@ -120,13 +126,8 @@ def fidelity_scoreboard(models: Mapping[str, xr.Dataset], truth: xr.Dataset | No
     bound = np.full(shape, np.nan)
     plain = np.full(shape, np.nan)
     kind = np.full(shape, "", dtype=object)
-    for j, model in enumerate(models.values()):
-        present = {str(p): k for k, p in enumerate(model.parameter.values)}
-        for i, name in enumerate(names):
-            k = present.get(name)
-            if k is None or not bool(model["free"].values[k]):
-                continue
-            plain[i, j], bound[i, j], kind[i, j] = _bound(model, k)
+    for i, j, model, k in _free_entries(models, names):
+        plain[i, j], bound[i, j], kind[i, j] = _bound(model, k)
     error = table["value"] - table["truth"]
     with np.errstate(divide="ignore", invalid="ignore"):
         z = np.where(bound > 0, np.abs(error.values) / bound, np.nan)   # no bound: no score

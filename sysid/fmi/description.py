@@ -140,6 +140,15 @@ def _attr(name: str, value) -> str:
     return f" {name}={quoteattr(str(value))}"
 
 
+def _variable_attrs(v) -> str:
+    """The attributes both FMI versions write on a variable: name, value reference,
+    description, causality, variability and initial."""
+    attrs = (_attr("name", v.name) + _attr("valueReference", v.value_reference)
+             + _attr("description", v.description) + _attr("causality", v.causality)
+             + _attr("variability", v.variability))
+    return attrs + (_attr("initial", v.initial) if v.initial else "")
+
+
 def _real(value: float) -> str:
     return repr(float(value))
 
@@ -181,11 +190,7 @@ def fmi2_model_description(desc: FmuDescription) -> str:
     out.append("  <ModelVariables>")
     index = desc.index()
     for v in desc.variables:
-        attrs = (_attr("name", v.name) + _attr("valueReference", v.value_reference)
-                 + _attr("description", v.description) + _attr("causality", v.causality)
-                 + _attr("variability", v.variability))
-        if v.initial:
-            attrs += _attr("initial", v.initial)
+        attrs = _variable_attrs(v)
         real = ""
         if v.unit:
             real += _attr("unit", v.unit)
@@ -279,11 +284,7 @@ def fmi3_model_description(desc: FmuDescription) -> str:
                f' description="simulation time" causality="independent"'
                f' variability="continuous"{time_unit}/>')
     for v in desc.variables:
-        attrs = (_attr("name", v.name) + _attr("valueReference", v.value_reference)
-                 + _attr("description", v.description) + _attr("causality", v.causality)
-                 + _attr("variability", v.variability))
-        if v.initial:
-            attrs += _attr("initial", v.initial)
+        attrs = _variable_attrs(v)
         if v.unit:
             attrs += _attr("unit", v.unit)
         if v.display_unit:
