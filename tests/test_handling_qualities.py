@@ -6,7 +6,7 @@ Uses the session's hover study (``hover_study`` in conftest.py: default campaign
 records the response at the step's start, so its data carry a 5 ms zero-order-hold delay the
 continuous linearisation lacks; the bandwidth check compares with the truth through that
 hold (``handling_qualities``' default), the phase-delay check with the plain truth as well.
-Measured on seeds 1, 2, 3 and 20261121 (sweeps only): docs/notes/2026-11-25-handling-qualities-hover.md.
+Measured on seeds 1, 2, 3 and 20261121 (sweeps only): docs/notes/2026-11-24-handling-qualities-hover.md.
 """
 
 from __future__ import annotations

@@ -32,7 +32,7 @@ control sample over the sample interval ``dt`` and records the response at the s
 hold, so its data carry the zero-order hold ``e^{-j omega dt/2} sinc(omega dt / 2)`` (a 5 ms
 delay at 100 Hz) that the continuous linearisations lack; identified models absorb it in their
 delays. The truth sources get it too (``sample_hold``), so that data and truth describe the
-same sampled system (docs/notes/2026-11-25-handling-qualities-hover.md measures the effect).
+same sampled system (docs/notes/2026-11-24-handling-qualities-hover.md measures the effect).
 
 Level boundaries (:data:`ADS33_BOUNDARIES`): hover and low speed, target acquisition and
 tracking, and all other MTEs, for pitch, roll and yaw (ADS-33E-PRF 3.3.2.1, 3.3.5.1, 3.3.9.1).
