@@ -295,21 +295,32 @@ def test_terminate_is_accepted_after_an_error(long_delay):
     # a refused call puts the FMU in its error state; terminate must still be accepted
     import shutil
     from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
+    from fmpy.fmi2 import (FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE,
+                           fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, calloc,
+                           free)
 
     _, fmu = long_delay
     md = read_model_description(str(fmu))
     unzip = extract(str(fmu))
     slave = FMU2Slave(guid=md.guid, unzipDirectory=unzip, instanceName="err",
                       modelIdentifier=md.coSimulation.modelIdentifier)
+    # Own callbacks, kept alive here: fmpy's shared default logger goes through a native
+    # proxy that crashed this process once on CI when the FMU logged its error.
+    messages = []
+    callbacks = fmi2CallbackFunctions()
+    callbacks.logger = fmi2CallbackLoggerTYPE(
+        lambda env, name, status, category, message: messages.append(message))
+    callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+    callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
     try:
-        slave.instantiate()
+        slave.instantiate(callbacks=callbacks)
         slave.setupExperiment(startTime=0.0)
         slave.enterInitializationMode()
         slave.exitInitializationMode()
         with pytest.raises(Exception, match="status 3"):
             slave.doStep(5.0, 0.01)  # wrong communication point: error state
         assert slave.fmi2Terminate(slave.component) == 0  # fmi2OK
+        assert any(b"communication point" in m for m in messages), messages
     finally:
         slave.freeInstance()
         shutil.rmtree(unzip, ignore_errors=True)
