@@ -17,6 +17,7 @@ from sysid.data.netcdf import update_campaign_groups
 from sysid.spectral.response import frequency_response
 from sysid.spectral.spectra import DEFAULT_C_EPS
 from sysid.assess.coherence import format_coherent_ranges
+from sysid.cli._options import add_transient_options, transient_states
 
 
 def _floats(text: str) -> list[float]:
@@ -50,12 +51,7 @@ def register(subparsers) -> None:
                    help="random-error constant of Eq. 9 (default 0.7)")
     p.add_argument("--unconditioned", action="store_true",
                    help="single-input estimates instead of MIMO conditioning")
-    p.add_argument("--transient-states", default="auto",
-                   help="comma-separated measured states whose segment start/end leakage is "
-                        "conditioned out (default 'auto': those of u,v,w,p,q,r,phi,theta "
-                        "that the records carry)")
-    p.add_argument("--no-transient-states", action="store_true",
-                   help="no leakage conditioning (the paper's method)")
+    add_transient_options(p)
     p.add_argument("--keep-windows", action="store_true",
                    help="also store the per-window results in /frequency_response_windows")
     p.add_argument("--quiet", action="store_true", help="no progress or summary output")
@@ -76,7 +72,7 @@ def run(args) -> int:
         omega_max=args.omega_max,
         C_eps=DEFAULT_C_EPS if args.C_eps is None else args.C_eps,
         conditioned=not args.unconditioned, keep_windows=args.keep_windows, progress=progress,
-        transient_states=() if args.no_transient_states else args.transient_states)
+        transient_states=transient_states(args))
     composite, per_window = result if args.keep_windows else (result, None)
     groups = {"frequency_response": composite}
     if per_window is not None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from sysid.pipeline.study import StudySettings, run_study
+from sysid.cli._options import add_transient_options, transient_states
 
 #: study name -> (default airspeed kt, default structure, default output folder)
 STUDIES = {
@@ -27,12 +28,7 @@ def register(subparsers) -> None:
     p.add_argument("--campaign", default=None, help="campaign TOML instead of the built-in")
     p.add_argument("--seed", type=int, default=20261121, help="campaign seed")
     p.add_argument("--no-noise", action="store_true", help="no sensor noise or turbulence")
-    p.add_argument("--transient-states", default="auto",
-                   help="states whose segment start/end leakage the frequency responses "
-                        "condition out (default 'auto': the measured ones among "
-                        "u,v,w,p,q,r,phi,theta)")
-    p.add_argument("--no-transient-states", action="store_true",
-                   help="frequency responses without leakage conditioning (the paper's method)")
+    add_transient_options(p)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
@@ -43,7 +39,7 @@ def run(args) -> int:
         airspeed_kt=speed if args.speed is None else args.speed,
         structure=args.structure or structure, seed=args.seed, noise=not args.no_noise,
         campaign_file=args.campaign,
-        transient_states="" if args.no_transient_states else args.transient_states)
+        transient_states=transient_states(args))
     report = run_study(Path(args.output or folder), settings, quiet=args.quiet)
     print(report.resolve())
     return 0
