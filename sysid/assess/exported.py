@@ -14,6 +14,7 @@ Time histories here are in analysis units (ft/s, deg/s, deg, %), absolute.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
 import zipfile
@@ -259,7 +260,7 @@ def _run_cs_in(fmu: _Exported, t, U, step_size, params: dict, unzip: str):
         raise InputDataError(f"step_size {step_size} s must be a multiple of the sample "
                              f"interval {dt} s")
     Y = np.full((len(t), len(vr_out)), np.nan)
-    try:
+    with _fmpy_session(slave, f"co-simulation of {fmu.path.name}"):
         slave.instantiate()
         slave.setupExperiment(startTime=0.0)
         if params:
@@ -274,12 +275,20 @@ def _run_cs_in(fmu: _Exported, t, U, step_size, params: dict, unzip: str):
                 slave.doStep(currentCommunicationPoint=time, communicationStepSize=stride * dt)
                 time = (k + stride) * dt
         slave.terminate()
-    except Exception as exc:
-        raise FMUError(f"co-simulation of {fmu.path.name} failed: {exc}") from None
-    finally:
-        slave.freeInstance()
-        slave.freeLibrary()
     return Y
+
+
+@contextlib.contextmanager
+def _fmpy_session(instance, what: str):
+    """Run the body on an fmpy FMU instance; any failure becomes ``FMUError("<what> failed:
+    ...")``, and the instance and its library are freed either way."""
+    try:
+        yield instance
+    except Exception as exc:
+        raise FMUError(f"{what} failed: {exc}") from None
+    finally:
+        instance.freeInstance()
+        instance.freeLibrary()
 
 
 def _run_me(fmu: _Exported, t: np.ndarray, U: np.ndarray, rtol: float, params: dict):
@@ -335,7 +344,7 @@ def directional_jacobian(fmu_path) -> xr.Dataset:
         kwargs = dict(guid=fmu.md.guid, unzipDirectory=unzip, instanceName="sysid_jacobian",
                       modelIdentifier=fmu.md.modelExchange.modelIdentifier)
         model = FMU2Model(**kwargs) if fmu.fmi_version == "2.0" else FMU3Model(**kwargs)
-        try:
+        with _fmpy_session(model, f"directional derivatives of {fmu.path.name}"):
             model.instantiate()
             if fmu.fmi_version == "2.0":
                 model.setupExperiment(startTime=0.0)
@@ -346,11 +355,6 @@ def directional_jacobian(fmu_path) -> xr.Dataset:
             for name in knowns:
                 columns.append(model.getDirectionalDerivative(unknowns, [vr[name]], [1.0]))
             model.terminate()
-        except Exception as exc:
-            raise FMUError(f"directional derivatives of {fmu.path.name} failed: {exc}") from None
-        finally:
-            model.freeInstance()
-            model.freeLibrary()
     J = np.array(columns, dtype=float).T  # (unknowns, knowns)
     nx = len(states)
     names = [s_.name for s_ in states]
