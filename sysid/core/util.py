@@ -6,8 +6,10 @@ import contextlib
 import functools
 import math
 import os
+import signal
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -17,7 +19,8 @@ from sysid.core.errors import IdentificationError
 
 
 @contextlib.contextmanager
-def atomic_path(path: str | os.PathLike, suffix: str | None = None):
+def atomic_path(path: str | os.PathLike, suffix: str | None = None, *,
+                hold_interrupts: bool = False):
     """Yield a temporary path next to ``path``; rename it onto ``path`` only on success.
 
     Whatever is written to the yielded path appears at ``path`` all at once or not at all:
@@ -25,20 +28,54 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None):
     file gets the permissions a plain ``open(path, "w")`` would give it: those of the file it
     replaces, else ``0o666`` less the umask (``mkstemp`` alone makes it owner-only, so a
     shared results folder would hold campaign files nobody else could read).
+
+    With ``hold_interrupts`` SIGINT is held while the block runs (:func:`interrupts_held`):
+    one that arrived is raised as :class:`KeyboardInterrupt` before the rename (temporary
+    removed, ``path`` unchanged), or after it if it arrived during the rename (the write is
+    complete).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix,
-                               dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp)
+    held = interrupts_held() if hold_interrupts else contextlib.nullcontext([])
+    with held as received:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}-",
+                                   suffix=suffix or path.suffix, dir=path.parent)
+        os.close(fd)
+        tmp = Path(tmp)
+        try:
+            yield tmp
+            if received:
+                raise KeyboardInterrupt
+            os.chmod(tmp, _new_file_mode(path))
+            os.replace(tmp, path)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+    if received:  # arrived during the rename: the write is complete, stop now
+        raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def interrupts_held():
+    """Hold SIGINT while a file library writes; yields the list of signals received.
+
+    An interrupt raised inside netCDF4/HDF5 or xarray's file-manager lock can deadlock the
+    process or be swallowed by a destructor; held, it is raised by the caller at a safe
+    point. Only the main thread receives signals, so elsewhere this does nothing.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield []
+        return
+    received: list[int] = []
     try:
-        yield tmp
-        os.chmod(tmp, _new_file_mode(path))
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+        previous = signal.signal(signal.SIGINT, lambda signum, frame: received.append(signum))
+    except ValueError:  # pragma: no cover - not the main interpreter
+        yield received
+        return
+    try:
+        yield received
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _new_file_mode(path: Path) -> int:

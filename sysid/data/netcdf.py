@@ -53,8 +53,6 @@ import json
 import os
 import re
 import shutil
-import signal
-import tempfile
 import threading
 import time
 from collections.abc import Mapping
@@ -64,7 +62,7 @@ import numpy as np
 import xarray as xr
 
 from sysid.core.errors import InputDataError
-from sysid.core.util import _new_file_mode
+from sysid.core.util import atomic_path
 
 __all__ = [
     "COMPLEX_DIM",
@@ -549,56 +547,15 @@ def remove_stale_temporaries(path: str | os.PathLike, *, acquired: float) -> lis
     return removed
 
 
-@contextlib.contextmanager
-def _interrupts_held():
-    """Hold SIGINT while the netCDF library writes; yields the list of signals received.
-
-    An interrupt raised inside netCDF4/HDF5 or xarray's file-manager lock can deadlock the
-    process or be swallowed by a destructor; held, it is raised by the caller at a safe
-    point. Only the main thread receives signals, so elsewhere this does nothing.
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield []
-        return
-    received: list[int] = []
-    try:
-        previous = signal.signal(signal.SIGINT, lambda signum, frame: received.append(signum))
-    except ValueError:  # pragma: no cover - not the main interpreter
-        yield received
-        return
-    try:
-        yield received
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
-@contextlib.contextmanager
 def _atomic_campaign(path: str | os.PathLike):
-    """Yield a temporary path next to the campaign's target; rename it onto the target on
-    success. Interrupts are held while the block runs: one that arrived is raised as
-    :class:`KeyboardInterrupt` before the rename (the temporary is removed and the campaign
-    is unchanged). A symbolic link ``path`` keeps pointing at the updated target."""
+    """:func:`~sysid.core.util.atomic_path` for the campaign's target with SIGINT held while
+    the netCDF library writes. A symbolic link ``path`` keeps pointing at the updated
+    target."""
     target = campaign_target(path)
     if target.is_dir():
         raise InputDataError(f"campaign file {path} is a directory; expected a file name "
                              "(e.g. campaign.nc)")
-    target.parent.mkdir(parents=True, exist_ok=True)
-    with _interrupts_held() as received:
-        fd, name = tempfile.mkstemp(prefix=f".{target.name}.{os.getpid()}-", suffix=".nc",
-                                    dir=target.parent)
-        os.close(fd)
-        tmp = Path(name)
-        try:
-            yield tmp
-            if received:
-                raise KeyboardInterrupt
-            os.chmod(tmp, _new_file_mode(target))
-            os.replace(tmp, target)
-        except BaseException:
-            tmp.unlink(missing_ok=True)
-            raise
-    if received:  # arrived during the rename: the write is complete, stop now
-        raise KeyboardInterrupt
+    return atomic_path(target, suffix=".nc", hold_interrupts=True)
 
 
 def with_groups(tree: xr.DataTree, groups: Mapping[str, xr.Dataset | xr.DataTree], *,
