@@ -8,9 +8,10 @@ from pathlib import Path
 
 from sysid import __version__
 from sysid.data.campaign import list_maneuvers
-from sysid.data.importers import read_time_history, write_csv
+from sysid.data.importers import read_time_histories, write_csv
 from sysid.data.netcdf import add_maneuvers, read_campaign
 from sysid.core.errors import InputDataError
+from sysid.core.guidelines import GAP_MAX_STEPS
 
 
 def _pairs(values: list[str] | None, option: str) -> dict[str, str]:
@@ -37,30 +38,73 @@ def _trim(values: list[str] | None) -> dict[str, float]:
     return out
 
 
+def _resample(value: str | None):
+    """``None``, ``"auto"`` or a positive rate in Hz from ``--resample``."""
+    if value is None or value == "auto":
+        return value
+    try:
+        rate = float(value)
+    except ValueError:
+        rate = float("nan")
+    if not rate > 0 or rate == float("inf"):
+        raise InputDataError(f"--resample {value!r}: expected a rate in Hz (e.g. 50) or "
+                             "'auto' (the record's median step)")
+    return rate
+
+
 def _import(args: argparse.Namespace) -> int:
     mapping = _pairs(args.map, "--map") or None
     units = _pairs(args.units, "--units") or None
     trim = _trim(args.trim) or None
+    resample = _resample(args.resample)
     out = Path(args.output)
-    # Read everything first and write once: a bad file leaves no (or the old) output behind.
-    datasets = {}
-    for file in args.files:
-        ds = read_time_history(file, mapping=mapping, units=units, kind=args.kind,
-                                  trim=trim)
-        name = ds.attrs["maneuver"]
-        if name in datasets:
-            raise InputDataError(f"{file}: manoeuvre name {name!r} is used by two input files")
-        datasets[name] = ds
     if out.is_dir():
         raise InputDataError(f"-o {out} is a directory; expected a campaign file name "
                              "(e.g. -o campaign.nc)")
+    # Read everything first and write once: a bad file leaves no (or the old) output behind.
+    datasets, notes = {}, []
+    for file in args.files:
+        records = read_time_histories(file, mapping=mapping, units=units, kind=args.kind,
+                                      trim=trim, time=args.time, resample=resample)
+        for name, ds in records.items():
+            if name in datasets:
+                raise InputDataError(f"{file}: manoeuvre name {name!r} is used twice among "
+                                     "the input files")
+            datasets[name] = ds
+            if "resample_rate_hz" in ds.attrs:
+                notes.append(_resample_note(name, ds.attrs))
     # One locked read-modify-write: imports and other stages writing the same campaign at
     # the same time keep each other's groups.
-    add_maneuvers(out, datasets, root_attrs={"campaign": out.stem,
-                                             "sysid_version": __version__})
+    result = add_maneuvers(out, datasets, root_attrs={"campaign": out.stem,
+                                                      "sysid_version": __version__},
+                           replace=args.replace)
     if not args.quiet:
-        print(f"{out}: imported {len(datasets)} manoeuvre(s): {', '.join(datasets)}")
+        for note in dict.fromkeys(notes):
+            print(note)
+        added = ", ".join(result["added"]) or "none"
+        print(f"{out}: imported {len(datasets)} manoeuvre(s): {', '.join(datasets)} "
+              f"(new: {added})")
+        if result["replaced"]:
+            print(f"{out}: replaced {', '.join(result['replaced'])}")
+        for group, reason in result["removed"].items():
+            print(f"{out}: removed {group} ({reason})")
     return 0
+
+
+def _resample_note(name: str, attrs) -> str:
+    """One line saying what resampling did to a record."""
+    filled, split = attrs["resample_gaps_filled"], attrs["resample_gaps_split"]
+    text = (f"{attrs.get('split_from', name)}: resampled to {attrs['resample_rate_hz']:g} Hz "
+            f"(median step {attrs['resample_source_step_s']:g} s, largest jitter "
+            f"{100 * attrs['resample_max_jitter']:.1f} % of the step; "
+            f"{len(filled)} gap(s) interpolated")
+    if filled:
+        text += " at " + ", ".join(f"{a:g} s ({b:g} s long)" for a, b in filled)
+    if split:
+        pieces = attrs["resample_pieces"]
+        text += (f"; split into {pieces} manoeuvres at " +
+                 ", ".join(f"{a:g} s ({b:g} s gap)" for a, b in split))
+    return text + f"; filter: {attrs['resample_filter']})"
 
 
 def _export_csv(args: argparse.Namespace) -> int:
@@ -80,11 +124,16 @@ def register(subparsers) -> None:
         "import",
         help="build a campaign file from time histories written by other tools",
         description=(
-            "Read one manoeuvre per FILE (CSV with a header row, or netCDF) and store them as "
-            "/maneuvers/<name> in the campaign file (added to it if it exists). The name is "
-            "the file stem; the kind is taken from its first token (sweep_, 3211_, 2311_, "
-            "doublet_, multisine_) unless --kind is given. Trim defaults to the mean of the "
-            "first second of data."),
+            "Read every manoeuvre of each FILE and store them as /maneuvers/<name> in the "
+            "campaign file (added to it if it exists). Formats are recognised from the "
+            "content: CSV with a header row or netCDF (one manoeuvre, named by the file "
+            "stem), MATLAB v5/v7 and v7.3 and HDF5 (one manoeuvre per top-level struct or "
+            "group, named by it, or one of flat vectors named by the file). The kind is "
+            "taken from the name's first token (sweep_, 3211_, 2311_, doublet_, "
+            "multisine_) unless --kind is given. Trim defaults to the mean of the first "
+            "second of data. A name the campaign already holds is refused unless --replace; "
+            "with it, the results computed from the old data (frequency responses, models, "
+            "verification, ...) are removed."),
     )
     p.add_argument("files", nargs="+", metavar="FILE")
     p.add_argument("-o", "--output", required=True, metavar="CAMPAIGN.nc")
@@ -98,6 +147,16 @@ def register(subparsers) -> None:
                                       "imported"])
     p.add_argument("--trim", action="append", metavar="CHANNEL=VALUE",
                    help="trim values in analysis units, e.g. theta=2.5,phi=-1.0")
+    p.add_argument("--time", default="time", metavar="NAME",
+                   help="name of the time column/field (default: time, or t)")
+    p.add_argument("--resample", metavar="RATE|auto",
+                   help="put records with clock jitter or missing samples on a uniform grid "
+                        "at RATE Hz (auto: the median step), anti-aliased when RATE is "
+                        "below the data rate; a gap longer than "
+                        f"{GAP_MAX_STEPS:g} steps splits the record into NAME_a, NAME_b")
+    p.add_argument("--replace", action="store_true",
+                   help="replace manoeuvres the campaign already holds and remove the "
+                        "results computed from them")
     p.add_argument("-q", "--quiet", action="store_true")
     p.set_defaults(func=_import)
 

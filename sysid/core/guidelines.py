@@ -17,7 +17,8 @@ from __future__ import annotations
 
 __all__ = ["COHERENCE_MIN", "CROSS_COHERENCE_MAX", "J_AVE_MAX", "J_PAIR_MAX",
            "CR_MAX_PERCENT", "INSENSITIVITY_MAX_PERCENT", "COST_INCREASE_MAX",
-           "BIAS_BOUNDS_MAX", "J_RMS_MAX", "TIC_MAX", "FIT_TIME_LIMIT_S", "GUIDELINES", "REDUCTION_GUIDELINES"]
+           "BIAS_BOUNDS_MAX", "J_RMS_MAX", "TIC_MAX", "FIT_TIME_LIMIT_S", "GAP_MIN_STEPS",
+           "GAP_MAX_STEPS", "GUIDELINES", "REDUCTION_GUIDELINES"]
 
 # -- frequency responses ---------------------------------------------------------------------
 #: Coherence gamma^2 above which a frequency point is accurate enough to fit and to judge
@@ -62,6 +63,21 @@ TIC_MAX = 0.25
 #: overloaded 2-core machine, see sysid.core.util.blas_threads). Each least-squares solve is
 #: also bounded in iterations (``max_nfev``, scipy's default 100 per parameter).
 FIT_TIME_LIMIT_S = 1800.0
+
+# -- resampling of imported records (sysid.data.resample) -----------------------------------
+#: A step between two samples longer than this many typical steps is a gap: at least one
+#: sample is missing. Clock jitter below +-50 % of the step on every sample stays below it;
+#: a missing sample reaches it. (A project choice, docs/methods.md, "Resampling imported
+#: records".)
+GAP_MIN_STEPS = 2.0
+#: Longest gap, in typical steps, that resampling bridges by interpolation; a longer one
+#: splits the record into two manoeuvres. The cubic spline across a gap of length T departs
+#: from a component of angular frequency w by at most 5 (w T)^4 / 384 of its amplitude
+#: (the spline's error bound, C. de Boor, A Practical Guide to Splines, 1978): at 4 steps
+#: and the top of the identification band (about 20 rad/s) 0.5 % for a 100 Hz record,
+#: 8.5 % for 50 Hz, on a few samples of thousands; longer bridges would put made-up data
+#: into the spectra and fits (a project choice; same section).
+GAP_MAX_STEPS = 4.0
 
 #: The guidelines by the names the HTML report shows them under.
 GUIDELINES = {

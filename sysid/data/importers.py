@@ -1,10 +1,16 @@
-"""Time histories in and out: CSV and netCDF files of other tools, and their checks.
+"""Time histories in and out: CSV, netCDF, MATLAB (v5, v7.3) and HDF5 files, and their checks.
 
-:func:`read_time_history` reads one manoeuvre written by another tool (CSV with a header row,
-or a netCDF file of 1-D variables on ``time``), converts known channels to the analysis units
-of :data:`sysid.core.units.CHANNELS` and fills the attributes of ``docs/data_model.md``
-(trim of a channel not given: :func:`sysid.data.campaign.first_window_mean`, the data
-model's one rule). :func:`validate_time_history` is the check every stage applies to a record.
+:func:`read_time_histories` reads every manoeuvre of a file written by another tool (CSV with
+a header row or netCDF of 1-D variables on ``time``: one; MAT v5/v7.3 or HDF5: one per
+top-level struct/group, or one when the file holds flat vectors; layouts in
+:mod:`sysid.data.formats`), with the format sniffed from the content, not the name. Known
+channels are converted to the analysis units of :data:`sysid.core.units.CHANNELS` and the
+attributes of ``docs/data_model.md`` filled (trim of a channel not given:
+:func:`sysid.data.campaign.first_window_mean`, the data model's one rule). A record off a
+uniform grid is refused unless ``resample=`` puts it on one (:mod:`sysid.data.resample`).
+:func:`read_time_history` is the one-manoeuvre form; :func:`write_time_histories` writes
+campaign manoeuvres as CSV, MAT v5, MAT v7.3 or HDF5 so that reading them back gives the same
+manoeuvres; :func:`validate_time_history` is the check every stage applies to a record.
 
 CSV time histories (:func:`write_csv`, :func:`read_time_history`) have one header row naming
 the columns as ``name [unit]`` (``time [s],lon [%],q [deg/s]``) and one row per sample;
@@ -18,7 +24,8 @@ from __future__ import annotations
 import json
 import os
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -29,17 +36,25 @@ from sysid.core.errors import InputDataError
 from sysid.core.units import CHANNELS, CONTROLS, PHYSICAL_RANGE, conversion_factor, physical_range
 from sysid.core.util import atomic_path
 from sysid.data.campaign import first_window_mean
+from sysid.data.formats import FORMATS, Group, read_groups, sniff_format, write_groups
 from sysid.data.netcdf import decode_attrs, decode_complex, encode_attrs, json_default
+from sysid.data.resample import Piece, resample_record
 
-__all__ = ["TIME_RTOL", "KINDS", "validate_time_history", "write_csv", "read_time_history"]
+__all__ = ["TIME_RTOL", "KINDS", "WRITE_FORMATS", "validate_time_history", "write_csv",
+           "write_time_histories", "read_time_history", "read_time_histories"]
 
 #: Relative tolerance on the sample interval of a "uniform" time grid.
 TIME_RTOL = 1e-6
 #: Manoeuvre kinds recognised from the first token of a manoeuvre name.
 KINDS = ("sweep", "3211", "2311", "doublet", "multisine")
 
+#: Formats :func:`write_time_histories` writes.
+WRITE_FORMATS = ("csv", *FORMATS)
+
 _CSV_ATTRS_PREFIX = "# sysid-attrs:"
-_NETCDF_MAGIC = (b"CDF\x01", b"CDF\x02", b"CDF\x05", b"\x89HDF\r\n\x1a\n")
+#: What the error for a non-uniform record suggests.
+_RESAMPLE_HINT = ("resample it onto a uniform grid (sysid import --resample RATE|auto, or "
+                  "resample= of sysid.data.importers.read_time_histories)")
 
 
 def _check_time_grid(t: np.ndarray, where: str, row_label=None, rtol: float = TIME_RTOL) -> float:
@@ -75,8 +90,7 @@ def _check_time_grid(t: np.ndarray, where: str, row_label=None, rtol: float = TI
         i = off[0] + 1
         raise InputDataError(
             f"{where}: time is not uniform at {label(i)}: step {float(steps[i - 1])!r} s, "
-            f"expected {float(dt)!r} s (relative tolerance {rtol:g}); resample the record "
-            "onto a uniform grid")
+            f"expected {float(dt)!r} s (relative tolerance {rtol:g}); {_RESAMPLE_HINT}")
     return float((t[-1] - t[0]) / (t.size - 1))
 
 
@@ -205,12 +219,6 @@ def write_csv(ds: xr.Dataset, path: str | os.PathLike) -> None:
             np.savetxt(fh, table, delimiter=",", fmt="%.17g")
 
 
-def _is_netcdf(path: Path) -> bool:
-    with open(path, "rb") as fh:
-        head = fh.read(8)
-    return any(head.startswith(m) for m in _NETCDF_MAGIC)
-
-
 def _split(line: str, delimiter: str | None) -> list[str]:
     return [c.strip() for c in (line.split() if delimiter is None else line.split(delimiter))]
 
@@ -228,7 +236,11 @@ def _read_csv_table(path: Path):
                              "expected CSV with a header row, or netCDF") from exc
     attrs = {}
     lines = []
-    for number, line in enumerate(text.splitlines(), 1):
+    # Lines as editors number them: at "\n" (a stray \x0c or \u2028 inside a line must not
+    # shift the line numbers messages give); old Mac files without "\n" split at "\r".
+    raw_lines = ([ln.rstrip("\r") for ln in text.split("\n")] if "\n" in text
+                 else text.split("\r"))
+    for number, line in enumerate(raw_lines, 1):
         stripped = line.strip()
         if stripped.startswith(_CSV_ATTRS_PREFIX):
             try:
@@ -315,71 +327,126 @@ def _read_netcdf_table(path: Path):
     return names, units, rows, np.arange(rows.shape[0]), dict(ds.attrs)
 
 
-def read_time_history(path: str | os.PathLike, mapping: Mapping[str, str] | None = None,
-                      units: Mapping[str, str] | None = None, kind: str | None = None,
-                      name: str | None = None, trim: Mapping[str, float] | None = None,
-                      rtol: float = TIME_RTOL) -> xr.Dataset:
-    """Read one manoeuvre from a CSV or netCDF file written by another tool.
+@dataclass
+class _Table:
+    """One manoeuvre's columns as read from a file, before channels are chosen."""
 
-    Parameters
-    ----------
-    path
-        Delimited text with one header row (comma, semicolon -- with decimal comma allowed --,
-        tab or whitespace; ``#`` lines are comments) or a netCDF file whose variables lie
-        on a ``time`` dimension. Header cells may carry units as ``q [deg/s]``.
-    mapping
-        ``{sysid channel: file column}``, e.g. ``{"lon": "DLON_PCT", "q": "Q_DEGS"}``. With a
-        mapping only the mapped columns (and time) are read; ``"time"`` may be mapped too.
-        Without one every column is read under its own name. The time column is otherwise
-        the one named ``time`` or ``t`` (any case).
-    units
-        ``{sysid channel: unit in the file}``. Known channels are converted to the analysis
-        unit of :data:`sysid.core.units.CHANNELS`. Overrides a unit given in the header.
-    kind, name
-        Manoeuvre kind and name. ``name`` defaults to the file stem; ``kind`` to the first
-        token of the name when it is one of ``sweep 3211 2311 doublet multisine``, else
-        ``"imported"``. The excited ``axis`` is the first control name among the tokens.
-    trim
-        ``{channel: trim value}`` in analysis units (any sysid channel, read or not);
-        channels read but not given get the mean of the first :data:`sysid.data.campaign.TRIM_WINDOW` (1 s) of
-        data, as the data model prescribes for imported data.
+    where: str  #: how messages name the manoeuvre's source ("file F" or "file F, struct 'S'")
+    name: str | None  #: struct/group name (None: the file stem or the attrs' name)
+    columns: list  #: column/field names, the time column among them
+    units: list  #: unit of each column in the file, or None
+    rows: np.ndarray  #: (n, ncol) float
+    label: Callable[[int], str]  #: names sample i in messages (file line or sample index)
+    attrs: dict  #: attributes stored with the manoeuvre
+    word: str = "column"  #: what the file calls a column ("column", "field", "dataset")
+    time_col: str = "time"
 
-    Returns
-    -------
-    xr.Dataset
-        Time history on ``time`` (s, shifted to start at 0; the original start is in attr
-        ``time_offset``), attributes per ``docs/data_model.md`` (``seed = -1``: not generated
-        by sysid). Any malformed file raises :class:`~sysid.core.errors.InputDataError`.
-    """
-    path = Path(path)
+
+def _time_column(columns, mapping: dict, time: str, where: str, word: str) -> str:
+    """The time column: ``mapping["time"]``, else ``time``, else one named time/t (any case)."""
+    if "time" in mapping:
+        col = mapping["time"]
+    elif time in columns:
+        col = time
+    elif time != "time":
+        col = None
+    else:
+        col = next((c for c in columns if c.lower() in ("time", "t")), None)
+    if col is None or col not in columns:
+        asked = col or time
+        raise InputDataError(
+            f"{where}: no time {word} {asked!r}; {word}s: {list(columns)}; name it 'time' "
+            f"or give its name (sysid import --time NAME, time=NAME, or "
+            f"mapping={{'time': NAME}})")
+    return col
+
+
+def _table_from_group(group: Group, mapping: dict, time: str) -> _Table:
+    """The columns of a MAT/HDF5 manoeuvre: its time vector and every numeric vector of the
+    same length (only the mapped ones when a mapping is given)."""
+    last = group.where.split(", ")[-1]
+    word = ("field" if last.startswith("struct ") else "dataset" if last.startswith("group ")
+            else "variable")
+    fields = {k: np.asarray(v) for k, v in group.fields.items()}
+    names = list(fields)
+    time_col = _time_column(names, mapping, time, group.where, word)
+    t = fields[time_col]
+    if t.ndim > 1 and sum(d > 1 for d in t.shape) <= 1:
+        t = t.ravel()
+    if t.ndim != 1:
+        raise InputDataError(f"{group.where}: time {word} {time_col!r} has shape {t.shape}; "
+                             "expected a vector")
+    n = t.size
+    wanted = [c for c in mapping.values()] if mapping else names
+    columns, data, ignored = [time_col], [t], list(group.ignored)
+    for col in names:
+        if col == time_col:
+            continue
+        v = fields[col]
+        vector = v.ravel() if v.size == n and sum(d > 1 for d in v.shape) <= 1 else None
+        if vector is None:
+            if mapping and col in wanted:
+                raise InputDataError(
+                    f"{group.where}: {word} {col!r} has shape {v.shape}; expected a vector of "
+                    f"{n} samples like time {word} {time_col!r}")
+            ignored.append(f"{col} (shape {v.shape})")
+            continue
+        if not mapping or col in wanted:
+            columns.append(col)
+            data.append(vector)
+    attrs = dict(group.attrs)
+    if ignored:
+        attrs.setdefault("ignored_fields", ", ".join(ignored))
+    missing_time_samples = t.size < 2
+    if missing_time_samples:
+        raise InputDataError(f"{group.where}: time {word} {time_col!r} has {t.size} "
+                             "sample(s); expected at least 2")
+    rows = np.column_stack([np.asarray(d, dtype=float) for d in data])
+    return _Table(where=group.where, name=group.name, columns=columns,
+                  units=[group.units.get(c) for c in columns], rows=rows,
+                  label=lambda i: f"sample {i}", attrs=attrs, word=word, time_col=time_col)
+
+
+def _tables(path: Path, mapping: dict, time: str) -> list[_Table]:
+    """Every manoeuvre of ``path`` as a :class:`_Table`, the format sniffed from content."""
     if not path.is_file():
         raise InputDataError(f"file {path} does not exist")
     try:
-        netcdf = _is_netcdf(path)
+        kind = sniff_format(path)
     except OSError as exc:
         raise InputDataError(f"cannot open {path}: {exc}") from exc
-    columns, file_units, rows, lines, file_attrs = (
-        _read_netcdf_table(path) if netcdf else _read_csv_table(path))
-    label = (lambda i: f"sample {i}") if netcdf else (lambda i: f"line {lines[i]}")
+    if kind in ("text", "netcdf"):
+        columns, file_units, rows, lines, attrs = (
+            _read_netcdf_table(path) if kind == "netcdf" else _read_csv_table(path))
+        label = ((lambda i: f"sample {i}") if kind == "netcdf"
+                 else (lambda i: f"line {lines[i]}"))
+        where = f"file {path}"
+        time_col = _time_column(columns, mapping, time, where, "column")
+        return [_Table(where=where, name=None, columns=columns, units=file_units, rows=rows,
+                       label=label, attrs=attrs, time_col=time_col)]
+    return [_table_from_group(g, mapping, time) for g in read_groups(path, kind)]
 
-    mapping = dict(mapping or {})
-    time_col = mapping.pop("time", None) or next(
-        (c for c in columns if c.lower() in ("time", "t")), None)
-    if time_col is None or time_col not in columns:
-        raise InputDataError(
-            f"file {path}: no time column {time_col or 'time'!r}; columns: {columns}; "
-            "name it 'time' or map it with mapping={'time': COLUMN}")
+
+def _datasets(table: _Table, path: Path, mapping: dict, units: Mapping | None,
+              kind: str | None, name: str | None, trim: Mapping | None, rtol: float,
+              resample) -> list[xr.Dataset]:
+    """The manoeuvre(s) of one table: channels chosen, converted and checked; one dataset,
+    or one per piece when ``resample`` split the record at a long gap."""
+    columns, file_units, rows, label = table.columns, table.units, table.rows, table.label
+    file_attrs, where0, word = table.attrs, table.where, table.word
+    time_col = table.time_col
+    mapping = {k: v for k, v in mapping.items() if k != "time"}
     if not mapping:
         mapping = {c: c for c in columns if c != time_col}
     missing = {ch: col for ch, col in mapping.items() if col not in columns}
     if missing:
         raise InputDataError(
-            f"file {path}: column(s) {sorted(missing.values())} not found (asked for by "
-            f"mapping {missing}); columns in the file: {columns}")
+            f"{where0}: {word}(s) {sorted(missing.values())} not found (asked for by "
+            f"mapping {missing}); {word}s in the file: {columns}")
 
     index = {c: j for j, c in enumerate(columns)}
     t = rows[:, index[time_col]]
-    where = f"file {path}, column {time_col!r}"
+    where = f"{where0}, {word} {time_col!r}"
     time_unit = (units or {}).get("time") or file_units[index[time_col]] or "s"
     # CF-style "seconds" / "seconds since <epoch>": the origin is dropped below anyway.
     if re.fullmatch(r"(s|sec|secs|second|seconds)(\s+since\s.*)?", time_unit.strip(), re.I):
@@ -389,14 +456,15 @@ def read_time_history(path: str | os.PathLike, mapping: Mapping[str, str] | None
             t = t * conversion_factor(time_unit, "s")
     except ValueError as exc:
         raise InputDataError(f"{where}: {exc}") from exc
-    _check_time_grid(t, where, label, rtol=rtol)
+    if resample is None:
+        _check_time_grid(t, where, label, rtol=rtol)
 
     data_vars = {}
     for ch, col in mapping.items():
         values = rows[:, index[col]]
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:
-            raise InputDataError(f"file {path}, {label(bad[0])}, column {col!r}: value "
+            raise InputDataError(f"{where0}, {label(bad[0])}, {word} {col!r}: value "
                                  f"{values[bad[0]]} is not finite; expected a number")
         file_unit = (units or {}).get(ch) or file_units[index[col]]
         if ch in CHANNELS:
@@ -404,7 +472,7 @@ def read_time_history(path: str | os.PathLike, mapping: Mapping[str, str] | None
             try:
                 factor = conversion_factor(file_unit, target) if file_unit else 1.0
             except ValueError as exc:
-                raise InputDataError(f"file {path}, column {col!r} (channel {ch!r}): "
+                raise InputDataError(f"{where0}, {word} {col!r} (channel {ch!r}): "
                                      f"{exc}") from exc
             attrs = {"units": target, "long_name": CHANNELS[ch].long_name}
             with np.errstate(over="ignore"):
@@ -412,20 +480,20 @@ def read_time_history(path: str | os.PathLike, mapping: Mapping[str, str] | None
             bad = np.flatnonzero(~np.isfinite(values))
             if bad.size:
                 raise InputDataError(
-                    f"file {path}, {label(bad[0])}, column {col!r}: value "
+                    f"{where0}, {label(bad[0])}, {word} {col!r}: value "
                     f"{rows[bad[0], index[col]]!r} {file_unit} overflows when converted to "
                     f"{target}; expected a finite number")
-            _check_range(values, ch, target, f"file {path}, column {col!r}", label)
+            _check_range(values, ch, target, f"{where0}, {word} {col!r}", label)
         else:
             attrs = {"units": file_unit or "1", "long_name": str(col)}
         if col != ch:
             attrs["source_column"] = str(col)
         var_name = ch if ch in CHANNELS else re.sub(r"[^A-Za-z0-9_.@+\-]", "_", ch)
-        data_vars[var_name] = ("time", values, attrs)
+        data_vars[var_name] = (values, attrs)
 
-    name = name or file_attrs.get("maneuver") or path.stem
+    name = name or file_attrs.get("maneuver") or table.name or path.stem
     if not isinstance(name, str) or not name.strip() or "/" in name or name in (".", ".."):
-        raise InputDataError(f"file {path}: manoeuvre name {name!r} is not usable as a group "
+        raise InputDataError(f"{where0}: manoeuvre name {name!r} is not usable as a group "
                              "name; expected a non-empty string without '/' (pass name=...)")
     guess_kind, guess_axis = _infer_kind_axis(name)
     attrs = {k: v for k, v in file_attrs.items() if not str(k).startswith("_")}
@@ -439,13 +507,11 @@ def read_time_history(path: str | os.PathLike, mapping: Mapping[str, str] | None
         "seed": file_attrs.get("seed", -1),
         "sysid_version": file_attrs.get("sysid_version", __version__),
         "source_file": str(path),
-        "time_offset": float(t[0]),
     })
-    time = (t - t[0])
     trim = dict(trim or {})
     unknown = sorted(set(trim) - set(data_vars) - set(CHANNELS))
     if unknown:
-        raise InputDataError(f"file {path}: trim given for unknown channel(s) {unknown}; "
+        raise InputDataError(f"{where0}: trim given for unknown channel(s) {unknown}; "
                              f"expected channels read ({sorted(data_vars)}) or sysid channels "
                              f"({sorted(CHANNELS)})")
     for key in [k for k in attrs if str(k).startswith("trim_")]:
@@ -454,18 +520,198 @@ def read_time_history(path: str | os.PathLike, mapping: Mapping[str, str] | None
             del attrs[key]  # not given: computed from the data below
         elif (isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number))
               or not np.isfinite(value)):
-            raise InputDataError(f"file {path}: attribute {key} = {value!r}; expected a finite "
+            raise InputDataError(f"{where0}: attribute {key} = {value!r}; expected a finite "
                                  "number (trim value in analysis units)")
     for var_name, value in trim.items():
         attrs[f"trim_{var_name}"] = float(value)
-    for var_name, (_, values, _) in data_vars.items():
-        key = f"trim_{var_name}"
-        if var_name in trim:
-            attrs[key] = float(trim[var_name])
-        elif key not in attrs:
-            attrs[key] = first_window_mean(time, values)
-    return xr.Dataset(data_vars, coords={"time": ("time", time, {"units": "s",
-                                                                  "long_name": "time"})},
-                      attrs=attrs)
+
+    names = list(data_vars)
+    matrix = (np.column_stack([data_vars[v][0] for v in names]) if names
+              else np.zeros((t.size, 0)))
+    if resample is None:
+        pieces = [Piece(time=t, values=matrix)]
+    else:
+        pieces = resample_record(t, matrix, rate=resample, where=where, label=label)
+    out = []
+    for k, piece in enumerate(pieces):
+        piece_attrs = {**attrs, **piece.attrs, "time_offset": float(piece.time[0])}
+        if len(pieces) > 1:
+            piece_attrs["maneuver"] = f"{name}_{piece.attrs['resample_piece']}"
+            piece_attrs["split_from"] = name
+        time = piece.time - piece.time[0]
+        for j, var_name in enumerate(names):
+            key = f"trim_{var_name}"
+            if key not in piece_attrs:
+                # One trim for every piece: the first second of the record (the first
+                # piece), the data model's rule; a later piece starts mid-manoeuvre.
+                piece_attrs[key] = first_window_mean(pieces[0].time - pieces[0].time[0],
+                                                     pieces[0].values[:, j])
+        variables = {v: ("time", piece.values[:, j], data_vars[v][1])
+                     for j, v in enumerate(names)}
+        out.append(xr.Dataset(variables, coords={"time": ("time", time, {
+            "units": "s", "long_name": "time"})}, attrs=piece_attrs))
+    return out
 
 
+def read_time_histories(path: str | os.PathLike, *, mapping: Mapping[str, str] | None = None,
+                        units: Mapping[str, str] | None = None, kind: str | None = None,
+                        trim: Mapping[str, float] | None = None, time: str = "time",
+                        resample: float | str | None = None,
+                        rtol: float = TIME_RTOL) -> dict[str, xr.Dataset]:
+    """Read every manoeuvre of a CSV, netCDF, MAT (v5, v7.3) or HDF5 file.
+
+    The format is sniffed from the content (MAT v5 header text, HDF5 signature at byte 512
+    for MAT v7.3 or at 0 for HDF5/netCDF-4, netCDF-3 magic, else delimited text), never from
+    the extension. CSV and netCDF files hold one manoeuvre; MAT and HDF5 files one per
+    top-level struct/group (named by it), or one when they hold flat vectors (layouts:
+    :mod:`sysid.data.formats`).
+
+    Parameters
+    ----------
+    path
+        The file.
+    mapping, units, kind, trim
+        As :func:`read_time_history`; the mapping names columns (CSV, netCDF) or fields
+        (MAT structs, HDF5 datasets) and applies to every manoeuvre of the file.
+    time
+        Name of the time column/field (s, or a unit given by ``units={"time": ...}`` or
+        the file). Default ``"time"``, which also finds one named ``t`` (any case).
+    resample
+        ``None``: a record off a uniform grid is refused (the error names the first
+        offending file line for CSV, sample index otherwise, and suggests resampling).
+        A rate in Hz, or ``"auto"`` (the record's median step): the record is put on a
+        uniform grid by :func:`sysid.data.resample.resample_record` (cubic spline; a
+        zero-phase Hamming FIR anti-aliasing filter first when the new rate is below the
+        data rate; gaps up to :data:`sysid.core.guidelines.GAP_MAX_STEPS` steps bridged,
+        longer ones split the record into manoeuvres ``<name>_a``, ``<name>_b``, ...,
+        each with ``split_from = <name>`` and the trim of the record's first second). The
+        attributes ``resample_*`` say what was done (largest jitter, gaps filled and
+        split, the filter).
+    rtol
+        Relative tolerance on the step of a uniform grid.
+
+    Returns
+    -------
+    dict
+        ``{manoeuvre name: time history}`` in file order (docs/data_model.md), each as
+        :func:`read_time_history` returns it. Any malformed file raises
+        :class:`~sysid.core.errors.InputDataError` naming the file, struct and field.
+
+    Examples
+    --------
+    >>> records = read_time_histories("flight12.mat", time="t", resample="auto",
+    ...                               mapping={"lon": "DLON", "q": "Q"})  # doctest: +SKIP
+    """
+    path = Path(path)
+    mapping = dict(mapping or {})
+    out: dict[str, xr.Dataset] = {}
+    for table in _tables(path, mapping, time):
+        for ds in _datasets(table, path, mapping, units, kind, None, trim, rtol, resample):
+            name = ds.attrs["maneuver"]
+            if name in out:
+                raise InputDataError(f"file {path}: two manoeuvres are named {name!r}; "
+                                     "expected one struct/group per manoeuvre")
+            out[name] = ds
+    return out
+
+
+def read_time_history(path: str | os.PathLike, mapping: Mapping[str, str] | None = None,
+                      units: Mapping[str, str] | None = None, kind: str | None = None,
+                      name: str | None = None, trim: Mapping[str, float] | None = None,
+                      rtol: float = TIME_RTOL, *, time: str = "time",
+                      resample: float | str | None = None) -> xr.Dataset:
+    """Read one manoeuvre from a file written by another tool (CSV, netCDF, or a MAT/HDF5
+    file holding one manoeuvre; :func:`read_time_histories` reads several).
+
+    Parameters
+    ----------
+    path
+        Delimited text with one header row (comma, semicolon -- with decimal comma allowed --,
+        tab or whitespace; ``#`` lines are comments), a netCDF file whose variables lie
+        on a ``time`` dimension, or a MAT/HDF5 file. Header cells may carry units as
+        ``q [deg/s]``.
+    mapping
+        ``{sysid channel: file column}``, e.g. ``{"lon": "DLON_PCT", "q": "Q_DEGS"}``. With a
+        mapping only the mapped columns (and time) are read; ``"time"`` may be mapped too.
+        Without one every column is read under its own name. The time column is otherwise
+        the one named ``time`` (``time=``) or ``t`` (any case).
+    units
+        ``{sysid channel: unit in the file}``. Known channels are converted to the analysis
+        unit of :data:`sysid.core.units.CHANNELS`. Overrides a unit given in the header.
+    kind, name
+        Manoeuvre kind and name. ``name`` defaults to the file stem; ``kind`` to the first
+        token of the name when it is one of ``sweep 3211 2311 doublet multisine``, else
+        ``"imported"``. The excited ``axis`` is the first control name among the tokens.
+    trim
+        ``{channel: trim value}`` in analysis units (any sysid channel, read or not);
+        channels read but not given get the mean of the first :data:`sysid.data.campaign.TRIM_WINDOW` (1 s) of
+        data, as the data model prescribes for imported data.
+    time, resample
+        As :func:`read_time_histories` (a resampled record must stay one piece here).
+
+    Returns
+    -------
+    xr.Dataset
+        Time history on ``time`` (s, shifted to start at 0; the original start is in attr
+        ``time_offset``), attributes per ``docs/data_model.md`` (``seed = -1``: not generated
+        by sysid). Any malformed file raises :class:`~sysid.core.errors.InputDataError`.
+    """
+    path = Path(path)
+    mapping = dict(mapping or {})
+    tables = _tables(path, mapping, time)
+    if len(tables) != 1:
+        raise InputDataError(f"file {path} holds {len(tables)} manoeuvres "
+                             f"({', '.join(str(t.name) for t in tables)}); read them with "
+                             "read_time_histories")
+    datasets = _datasets(tables[0], path, mapping, units, kind, name, trim, rtol, resample)
+    if len(datasets) != 1:
+        raise InputDataError(f"file {path}: resampling split the record into "
+                             f"{len(datasets)} pieces at gaps; read them with "
+                             "read_time_histories")
+    return datasets[0]
+
+
+def write_time_histories(path: str | os.PathLike, datasets: Mapping[str, xr.Dataset], *,
+                         format: str) -> None:
+    """Write manoeuvres (time histories as stored in ``/maneuvers/<name>``) to one file.
+
+    ``format``: ``"csv"`` (one manoeuvre: :func:`write_csv`), ``"mat5"`` (MAT v5 by
+    ``scipy.io.savemat``), ``"mat73"`` (MAT v7.3: HDF5 with the MATLAB user block and
+    ``MATLAB_class`` attributes) or ``"hdf5"``; one struct/group per manoeuvre, named by
+    the manoeuvre (MAT: made a valid MATLAB name), holding the time vector ``time`` (s) and
+    every numeric variable on ``time`` alone, with units and attributes (layout:
+    :mod:`sysid.data.formats`). :func:`read_time_histories` gives the same manoeuvres back
+    (float64 values, the attributes plus ``source_file`` and ``time_offset``). Atomic:
+    the file appears whole or not at all.
+
+    Examples
+    --------
+    >>> write_time_histories("flight.mat", {"sweep_lon_1": ds}, format="mat73")  # doctest: +SKIP
+    """
+    if format not in WRITE_FORMATS:
+        raise InputDataError(f"format {format!r}: expected one of {WRITE_FORMATS}")
+    if not datasets:
+        raise InputDataError(f"cannot write {path}: no manoeuvres given")
+    if format == "csv":
+        if len(datasets) != 1:
+            raise InputDataError(f"cannot write {len(datasets)} manoeuvres to CSV {path}: a "
+                                 "CSV file holds one; write one file each or use mat5, mat73 "
+                                 "or hdf5")
+        (name, ds), = datasets.items()
+        write_csv(ds.assign_attrs(maneuver=name), path)
+        return
+    groups = {}
+    for name, ds in datasets.items():
+        if not isinstance(name, str) or not name or "/" in name:
+            raise InputDataError(f"manoeuvre name {name!r} must be non-empty and contain "
+                                 "no '/'")
+        validate_time_history(ds, name=name)
+        names = [str(k) for k, v in ds.data_vars.items()
+                 if v.dims == ("time",) and v.dtype.kind in "biuf"]
+        fields = {"time": np.asarray(ds["time"].values, dtype=float)}
+        fields.update({k: np.asarray(ds[k].values, dtype=float) for k in names})
+        units = {"time": ds["time"].attrs.get("units", "s")}
+        units.update({k: ds[k].attrs["units"] for k in names if ds[k].attrs.get("units")})
+        groups[name] = {"fields": fields, "units": units,
+                        "attrs": {**ds.attrs, "maneuver": name}}
+    write_groups(path, groups, format=format)

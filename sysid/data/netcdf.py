@@ -63,6 +63,7 @@ import xarray as xr
 
 from sysid.core.errors import InputDataError
 from sysid.core.util import atomic_path
+from sysid.data.stale import STAMP_ATTRS, stale_groups
 
 __all__ = [
     "COMPLEX_DIM",
@@ -581,12 +582,17 @@ def _rewrite_groups(path, groups: Mapping[str, xr.Dataset | xr.DataTree]) -> Non
 
 
 def add_maneuvers(path: str | os.PathLike, datasets: Mapping[str, xr.Dataset], *,
-                  root_attrs: Mapping | None = None) -> None:
-    """Add (or replace) manoeuvres ``{name: time history}`` in the campaign at ``path``.
+                  root_attrs: Mapping | None = None, replace: bool = False) -> dict:
+    """Add manoeuvres ``{name: time history}`` to the campaign at ``path``.
 
     One locked read-modify-write (:func:`campaign_lock`): manoeuvres that other processes add
     at the same time are kept. ``root_attrs`` are set on the root where it lacks them
-    (e.g. ``campaign``, ``sysid_version``); a missing file starts a campaign.
+    (e.g. ``campaign``, ``sysid_version``); a missing file starts a campaign. A name the
+    campaign already holds is refused (InputDataError, the file untouched) unless
+    ``replace``; then every group computed from the replaced manoeuvres is removed
+    (:func:`sysid.data.stale.stale_groups`) and stage stamps that described the old inputs
+    are dropped, so nothing is left describing old data. Everything else is kept as it was.
+    Returns ``{"added": [...], "replaced": [...], "removed": {group: reason}}``.
     """
     for name in datasets:
         if not name or "/" in name:
@@ -594,13 +600,35 @@ def add_maneuvers(path: str | os.PathLike, datasets: Mapping[str, xr.Dataset], *
                                  "no '/'")
     with campaign_lock(path):
         tree = read_campaign(path) if Path(path).exists() else xr.DataTree()
+        existing = set(tree["maneuvers"].children) if "maneuvers" in tree.children else set()
+        replaced = sorted(set(datasets) & existing)
+        if replaced and not replace:
+            raise InputDataError(
+                f"campaign {path} already holds manoeuvre(s) {replaced}; pass --replace "
+                "(replace=True) to replace them and remove the results computed from them")
+        removed = stale_groups(tree, replaced) if replaced else {}
         root = tree.to_dataset(inherit=False)
         for key, value in (root_attrs or {}).items():
             root.attrs.setdefault(key, value)
         nodes = _nodes(tree)
         nodes["/"] = root
+        for group in removed:
+            nodes = {p: ds for p, ds in nodes.items()
+                     if p != group and not p.startswith(group + "/")}
+        if replaced:
+            # Stamps say which inputs produced a group: not true any more for /maneuvers
+            # nor for a parent that lost children.
+            parents = {"/maneuvers"} | {g.rsplit("/", 1)[0] for g in removed}
+            for parent in parents & set(nodes):
+                ds = nodes[parent]
+                if any(k in ds.attrs for k in STAMP_ATTRS):
+                    ds = ds.copy()
+                    ds.attrs = {k: v for k, v in ds.attrs.items() if k not in STAMP_ATTRS}
+                    nodes[parent] = ds
         nodes.update({f"/maneuvers/{n}": ds for n, ds in datasets.items()})
         write_campaign(_tree_from_nodes(nodes, f"in {path}"), path)
+    return {"added": sorted(set(datasets) - existing), "replaced": replaced,
+            "removed": removed}
 
 
 def _update_campaign(path, group: str, dataset) -> None:
