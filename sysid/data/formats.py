@@ -536,13 +536,15 @@ def _write_mat73(path: Path, groups: Mapping[str, dict]) -> None:
     import h5py  # deferred: only HDF5 files need it
 
     structs = _matlab_structs(groups)
-    with h5py.File(path, "w", userblock_size=_USER_BLOCK, libver="earliest") as f:
+    # Creation order tracked, so readers list manoeuvres and channels in the written order.
+    with h5py.File(path, "w", userblock_size=_USER_BLOCK, libver="earliest",
+                   track_order=True) as f:
         for var, fields in structs.items():
-            g = f.create_group(var)
+            g = f.create_group(var, track_order=True)
             _h5_class(g, "struct")
             for key, value in fields.items():
                 if key == "units":
-                    sub = g.create_group("units")
+                    sub = g.create_group("units", track_order=True)
                     _h5_class(sub, "struct")
                     for ukey, unit in value.items():
                         _h5_char(sub, ukey, unit)
@@ -560,10 +562,10 @@ def _write_mat73(path: Path, groups: Mapping[str, dict]) -> None:
 def _write_hdf5(path: Path, groups: Mapping[str, dict]) -> None:
     import h5py  # deferred: only HDF5 files need it
 
-    with h5py.File(path, "w") as f:
+    with h5py.File(path, "w", track_order=True) as f:
         f.attrs["sysid_version"] = __version__
         for name, group in groups.items():
-            g = f.create_group(name)
+            g = f.create_group(name, track_order=True)
             for key, values in group["fields"].items():
                 ds = g.create_dataset(key, data=np.asarray(values, dtype=float))
                 if group["units"].get(key):

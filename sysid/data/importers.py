@@ -377,7 +377,13 @@ def _table_from_group(group: Group, mapping: dict, time: str) -> _Table:
         raise InputDataError(f"{group.where}: time {word} {time_col!r} has shape {t.shape}; "
                              "expected a vector")
     n = t.size
-    wanted = [c for c in mapping.values()] if mapping else names
+    wanted = [c for k, c in mapping.items() if k != "time"]
+    missing = {ch: col for ch, col in mapping.items() if ch != "time" and col not in names}
+    if missing:
+        raise InputDataError(
+            f"{group.where}: {word}(s) {sorted(missing.values())} not found (asked for by "
+            f"mapping {missing}); {word}s in the file: {names}")
+    mapping = {k: c for k, c in mapping.items() if k != "time"}
     columns, data, ignored = [time_col], [t], list(group.ignored)
     for col in names:
         if col == time_col:

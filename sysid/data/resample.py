@@ -6,8 +6,8 @@ them and returns one or more uniform pieces:
 1. The typical step ``dt`` is the recorder's: the median step finds the gaps, a line
    fitted through the sample times against their nominal indices gives ``dt``. A step longer than
    :data:`sysid.core.guidelines.GAP_MIN_STEPS` typical steps is a *gap*; a gap of up to
-   :data:`~sysid.core.guidelines.GAP_MAX_STEPS` steps is bridged, a longer one splits the
-   record (pieces ``a``, ``b``, ...).
+   :data:`~sysid.core.guidelines.GAP_MAX_STEPS` steps (its length rounded to whole steps)
+   is bridged, a longer one splits the record (pieces ``a``, ``b``, ...).
 2. Each piece is interpolated by a cubic spline (``scipy.interpolate.CubicSpline``,
    not-a-knot) through the recorded samples: on the new grid directly when the new step is
    not longer than ``dt``; otherwise first onto a uniform grid at ``dt``, then low-pass
@@ -187,7 +187,9 @@ def resample_record(t, values, *, rate, where: str = "record",
             raise InputDataError(f"resample rate {rate!r} Hz: expected a positive number")
         dt_new = 1.0 / rate
     gap = steps > GAP_MIN_STEPS * dt
-    split = steps > GAP_MAX_STEPS * dt
+    # A gap's length in whole nominal steps: 4 steps recorded as 0.04000000000000001 s (or
+    # 4.3 steps under jitter) is a gap of 4.
+    split = gap & (np.round(steps / dt) > GAP_MAX_STEPS)
     jitter = _jitter(t, dt)
     t0 = t[0]
     filled = [[float(t[i] - t0), float(steps[i])] for i in np.flatnonzero(gap & ~split)]

@@ -62,6 +62,8 @@ def stale_groups(tree: xr.DataTree, names) -> dict[str, str]:
     Leaf-most paths; a parent is listed when every child of it is. Empty when nothing in
     ``tree`` used ``names`` (e.g. a campaign holding only manoeuvres)."""
     names = set(names)
+    if not names:
+        return {}
     paths = {node.path: node for node in tree.subtree}
     stale: dict[str, str] = {}
 
@@ -118,7 +120,8 @@ def stale_groups(tree: xr.DataTree, names) -> dict[str, str]:
     for parent in ("/verification", "/validation", "/models", "/transfer_functions"):
         children = leaves(parent)
         if parent in paths and children and all(
-                c in stale or all(g in stale for g in leaves(c)) for c in children):
+                c in stale or (leaves(c) and all(g in stale for g in leaves(c)))
+                for c in children):
             reasons = sorted({stale.pop(g) for c in children for g in [c, *leaves(c)]
                               if g in stale})
             stale[parent] = "; ".join(reasons)
