@@ -1,17 +1,28 @@
 """ADS-33E-PRF bandwidth and phase delay of the attitude responses, with Level boundaries.
 
 For an attitude response ``H(j omega)`` (theta/lon, phi/lat, psi/ped; deg per %), with its phase
-``phi(omega)`` unwrapped from a reference frequency (docs/methods.md, "Handling qualities"):
+``phi(omega)`` unwrapped on the branch below (docs/methods.md, "Handling qualities"):
 
-    omega_180        phi(omega_180) = -180 deg (the first crossing above the reference)
-    omega_BW,phase   phi = -135 deg: 45 deg of phase margin (the last crossing below omega_180)
+    omega_180        phi(omega_180) = -180 deg (the first crossing above the reference with
+                     the phase falling: neutral stability of a pure-gain loop)
+    omega_BW,phase   phi = -135 deg: 45 deg of phase margin (the last falling crossing below
+                     omega_180)
     omega_BW,gain    |H| = |H(omega_180)| + 6 dB: 6 dB of gain margin (the last crossing below
                      omega_180)
     tau_p            -(phi(2 omega_180) + 180 deg) / (57.3 * 2 omega_180)     (s)
 
-and the governing bandwidth ADS-33E-PRF 3.3.2.1 prescribes: for rate response types the lesser
-of ``omega_BW,gain`` and ``omega_BW,phase`` (``omega_BW,phase`` where the gain bandwidth is
-undefined), for attitude-command/attitude-hold response types ``omega_BW,phase``.
+and the governing bandwidth ADS-33E-PRF 3.3.2.1 (3.3.5.1 for yaw) prescribes: for rate
+response types the lesser of ``omega_BW,gain`` and ``omega_BW,phase`` (``omega_BW,phase``
+where the gain bandwidth is undefined), for attitude-command/attitude-hold response types
+``omega_BW,phase``.
+
+Phase branch: the 360-deg branch whose median phase over the data's coherent band (coherence
+>= 0.6, the same band for every source) lies in (-270, 90] deg. Over the band that holds the
+bandwidth an attitude response is integrator-like (-90 deg) to lagging (-180 deg and beyond);
+below it a low-frequency mode (the hover's unstable pitch-roll oscillation, the outer
+velocity hold) can turn the phase positive, so the phase at the band's lowest frequency alone
+can pick a branch 360 deg off (it did on noise-free data coherent down to 0.08 rad/s). Only
+falling crossings of -180 and -135 deg count: a rising one is no loss of phase margin.
 
 Uncertainty from the composite random error ``eps_r`` (Eq. 13-14): the phase is uncertain by
 ``(180/pi) eps_r`` deg and the magnitude by ``(20/ln 10) eps_r`` dB, so a crossing of a level
@@ -24,25 +35,33 @@ Sources (:func:`handling_qualities`): the composite data (the measured attitude,
 integrated, ``H/(j omega)``, where the attitude is not measured), the truth's full
 linearisation (``/linearization_full``: rotor, inflow and actuators, the truth), its
 quasi-steady reduction (``/linearization``) and every identified model (``/models/<method>``).
-The phase of each is unwrapped on the same branch, fixed at the lowest frequency of the data's
-coherent band (coherence >= 0.6), where it is put in (-360, 0] deg.
+The phase of each is unwrapped and put on the branch above, fixed over the data's coherent
+band; the crossings are searched from the band's lowest frequency upwards.
 
 Sample and hold: a campaign flown by :func:`sysid.flight_test.campaign.run_campaign` holds each
 control sample over the sample interval ``dt`` and records the response at the start of the
-hold, so its data carry the zero-order hold ``e^{-j omega dt/2} sinc(omega dt / 2)`` (a 5 ms
-delay at 100 Hz) that the continuous linearisations lack; identified models absorb it in their
-delays. The truth sources get it too (``sample_hold``), so that data and truth describe the
-same sampled system (docs/notes/2026-11-24-handling-qualities-hover.md measures the effect).
+hold, so its data carry the zero-order hold ``Z(j omega) = e^{-j omega dt/2} sinc(omega dt / 2)``
+(a 5 ms delay at 100 Hz; the exact ZOH equivalent of a continuous model agrees with ``G Z`` to
+four digits in bandwidth and phase delay below 20 rad/s) that belongs to the simulated test, not
+to the helicopter. The assessment describes the helicopter: the known hold is divided out of
+the data's response (``sample_hold``), and out of a model fitted to those responses (a
+frequency-domain fit, attribute ``J_ave``, whose delays absorbed it); the truth
+linearisations and time-domain models (simulated with the hold applied exactly,
+:func:`sysid.models.simulation.simulate`) are continuous already. Imported data (no hold
+known) are left as they are.
 
 Level boundaries (:data:`ADS33_BOUNDARIES`): hover and low speed, target acquisition and
-tracking, and all other MTEs, for pitch, roll and yaw (ADS-33E-PRF 3.3.2.1, 3.3.5.1, 3.3.9.1).
+tracking, and all other MTEs, for pitch and roll (ADS-33E-PRF 3.3.2.1) and yaw (3.3.5.1).
 A point is Level 1 when it lies right of (below) the Level-1 boundary, Level 2 right of the
-Level-2 boundary, else Level 3.
+Level-2 boundary, else Level 3. Which corner points a public source confirms is recorded in
+:data:`ADS33_CONFIRMED`; the others are an unverified transcription (docs/methods.md).
 
 References
 ----------
 * ADS-33E-PRF, *Aeronautical Design Standard, Performance Specification, Handling Qualities
-  Requirements for Military Rotorcraft*, US Army AMCOM, 2000, 3.3.2.1, 3.3.5.1, 3.3.9.1.
+  Requirements for Military Rotorcraft*, US Army AMCOM, 21 March 2000, 3.3.2.1, 3.3.5.1.
+* Padfield, G. D., *Helicopter Flight Dynamics*, 2nd ed., Blackwell, 2007, ch. 6 (the
+  ADS-33 yaw bandwidth boundaries, Fig. 6.64).
 * Tischler, M. B. and Remple, R. K., *Aircraft and Rotorcraft System Identification*, 2nd ed.,
   AIAA, 2012, ch. 15 (bandwidth and phase delay from identified frequency responses).
 * docs/methods.md, "Handling qualities and broken-loop margins".
@@ -67,7 +86,8 @@ from sysid.models import frequency_response
 
 __all__ = ["AXES", "RESPONSE_TYPES", "MTES", "ADS33_BOUNDARIES", "ADS33_SOURCE",
            "bandwidth_phase_delay", "boundary_bandwidth", "ads33_level", "attitude_responses",
-           "handling_qualities", "sample_hold_interval", "OMEGA_REF_DEFAULT", "MODEL_GRID"]
+           "handling_qualities", "sample_hold_interval", "zero_order_hold",
+           "carries_sample_hold", "ADS33_CONFIRMED", "OMEGA_REF_DEFAULT", "MODEL_GRID"]
 
 #: Attitude response of each axis: (attitude, control).
 AXES = {"pitch": ("theta", "lon"), "roll": ("phi", "lat"), "yaw": ("psi", "ped")}
@@ -84,14 +104,19 @@ MODEL_GRID = (0.05, 100.0, 2000)
 DEG_PER_RAD = 57.3
 
 #: Where the Level boundaries come from.
-ADS33_SOURCE = ("ADS-33E-PRF (2000), hover and low speed: Figure 1 of 3.3.2.1 (pitch and "
-                "roll) and the yaw figure of 3.3.9.1; corner points as transcribed in "
-                "docs/methods.md, not checked against a copy of the specification")
+ADS33_SOURCE = ("ADS-33E-PRF (21 March 2000), hover and low speed: the bandwidth/phase-delay "
+                "figures of 3.3.2.1 (pitch, roll) and 3.3.5.1 (yaw); only the yaw Level 1 "
+                "minimum bandwidth for target acquisition and tracking (3.5 rad/s) is "
+                "confirmed by a public source (Padfield 2007, Fig. 6.64); every other corner "
+                "point is an unverified transcription (docs/methods.md)")
 
 #: Level boundaries of the bandwidth (rad/s) / phase-delay (s) charts, hover and low speed:
 #: ``{(axis, mte): {"L1": [(omega_BW, tau_p), ...], "L2": [...]}}``, each boundary from the
 #: ``tau_p = 0`` axis upwards; beyond its last corner it continues with its last segment's
-#: slope. See :data:`ADS33_SOURCE` and docs/methods.md (the same numbers, with the caveat).
+#: slope. UNVERIFIED: these corner points were transcribed without a copy of ADS-33E-PRF and
+#: could not be checked against the specification's figures (no public copy or table quoting
+#: them was found); the one value a public source confirms is listed in
+#: :data:`ADS33_CONFIRMED`. Do not base a Level decision on the others (docs/methods.md).
 ADS33_BOUNDARIES: dict[tuple[str, str], dict[str, tuple[tuple[float, float], ...]]] = {
     ("pitch", "tracking"): {"L1": ((2.0, 0.0), (2.0, 0.12), (4.0, 0.20)),
                             "L2": ((1.0, 0.0), (1.0, 0.20), (4.0, 0.30))},
@@ -107,6 +132,15 @@ ADS33_BOUNDARIES: dict[tuple[str, str], dict[str, tuple[tuple[float, float], ...
                        "L2": ((1.0, 0.0), (1.0, 0.20), (6.0, 0.30))},
 }
 
+#: The corner values a public source confirms: ``{(axis, mte, boundary): (omega_BW rad/s at
+#: small tau_p, source)}``. Everything in :data:`ADS33_BOUNDARIES` not listed is unverified.
+ADS33_CONFIRMED: dict[tuple[str, str, str], tuple[float, str]] = {
+    ("yaw", "tracking", "L1"): (
+        3.5, "Padfield, Helicopter Flight Dynamics, 2nd ed., 2007, ch. 6, Fig. 6.64(a) (from "
+             "ADS-33): 'Level 1 boundary at 3.5 rad/s' for target acquisition and tracking, "
+             "hover/low speed and forward flight"),
+}
+
 _QUANTITIES = ("omega_180", "bandwidth_phase", "bandwidth_gain", "bandwidth", "tau_p")
 
 
@@ -117,7 +151,8 @@ def _slope(omega, y) -> np.ndarray:
 
 def bandwidth_phase_delay(omega, H, *, coherence=None, random_error=None,
                           response_type: str = "rate",
-                          omega_ref: float | None = None) -> dict[str, float]:
+                          omega_ref: float | None = None,
+                          branch_band: tuple[float, float] | None = None) -> dict[str, float]:
     """ADS-33E-PRF bandwidth and phase delay of one attitude response (module docstring).
 
     Parameters
@@ -132,7 +167,10 @@ def bandwidth_phase_delay(omega, H, *, coherence=None, random_error=None,
     response_type : {"rate", "attitude"}
         Which bandwidth governs.
     omega_ref : float, optional
-        Phase branch and start of the crossing search (rad/s); default the lowest frequency.
+        Start of the crossing search (rad/s); default the lowest frequency.
+    branch_band : (float, float), optional
+        Band (rad/s) whose median phase fixes the 360-deg branch: it is put in (-270, 90]
+        deg (module docstring); default from ``omega_ref`` to the top of ``omega``.
 
     Returns
     -------
@@ -173,19 +211,21 @@ def bandwidth_phase_delay(omega, H, *, coherence=None, random_error=None,
     eps = (np.asarray(random_error, float)[ok] if random_error is not None
            else np.full(w.shape, nan))
     ref = float(w[0]) if omega_ref is None else float(omega_ref)
+    lo, hi = (ref, float(w[-1])) if branch_band is None else map(float, branch_band)
     phase = np.rad2deg(np.unwrap(np.angle(Hk)))
-    p_ref = float(interp_log(w, phase, min(max(ref, w[0]), w[-1])))
-    phase -= 360.0 * math.ceil(p_ref / 360.0)  # branch: phase(ref) in (-360, 0]
+    in_band = (w >= lo) & (w <= hi)
+    p_mid = float(np.median(phase[in_band] if in_band.any() else phase))
+    phase -= 360.0 * math.ceil((p_mid - 90.0) / 360.0)  # branch: median in (-270, 90]
     gain = 20.0 * np.log10(np.abs(Hk))
     above = lambda xs: xs[xs >= ref]  # noqa: E731
-    c180 = above(crossings(w, phase, -180.0))
+    c180 = above(crossings(w, phase, -180.0, direction="down"))
     if c180.size == 0:
         return out
     w180 = float(c180[0])
     g180 = float(interp_log(w, gain, w180))
     out.update(omega_180=w180, gain_180_db=g180)
     below = lambda xs: xs[(xs >= ref) & (xs <= w180)]  # noqa: E731
-    cp = below(crossings(w, phase, -135.0))
+    cp = below(crossings(w, phase, -135.0, direction="down"))
     cg = below(crossings(w, gain, g180 + 6.0))
     bw_p = float(cp[-1]) if cp.size else nan
     bw_g = float(cg[-1]) if cg.size else nan
@@ -258,6 +298,22 @@ def ads33_level(bandwidth, tau_p, *, axis: str, mte: str) -> np.ndarray:
 # a campaign
 
 
+def zero_order_hold(omega, dt: float) -> np.ndarray:
+    """Frequency response of a zero-order hold of ``dt`` s sampled at the start of each hold:
+    ``e^{-j omega dt/2} sinc(omega dt/2)`` on ``omega`` (rad/s); a delay of ``dt/2`` and a gain
+    droop (module docstring)."""
+    x = np.asarray(omega, float) * float(dt) / 2.0
+    return np.exp(-1j * x) * np.sinc(x / np.pi)
+
+
+def carries_sample_hold(model: xr.Dataset) -> bool:
+    """Whether an identified model was fitted to a campaign's frequency responses (a
+    frequency-domain fit, attribute ``J_ave``), so that its delays absorbed the campaign's
+    zero-order hold; a time-domain model is simulated with the hold applied exactly and is
+    continuous."""
+    return "J_ave" in model.attrs
+
+
 def _model_grid() -> np.ndarray:
     lo, hi, n = MODEL_GRID
     return np.logspace(math.log10(lo), math.log10(hi), int(n))
@@ -269,12 +325,13 @@ def attitude_responses(data: CampaignData, *, sources: Sequence[str] | None = No
     """The attitude responses of every source, per axis.
 
     Returns ``{axis: {"pair", "origin", "omega_ref", "responses": {source: (omega, H,
-    coherence or None, random_error or None)}}}``. ``origin`` says whether the data's attitude
+    coherence or None, random_error or None)}, "hold_removed": [source, ...]}}``. ``origin`` says whether the data's attitude
     was measured or integrated from the rate; ``omega_ref`` is the lowest frequency of the
     data's coherent band (:data:`OMEGA_REF_DEFAULT` without data). Sources: ``data``,
     ``linearization_full``, ``linearization`` and the ``/models`` methods, those present (or
-    the ones named in ``sources``). ``sample_hold`` (s): the zero-order hold applied to the
-    truth sources (module docstring); None: none.
+    the ones named in ``sources``). ``sample_hold`` (s): the campaign's zero-order hold,
+    divided out of the data and of the models fitted to them (:func:`carries_sample_hold`;
+    module docstring); None: none.
     """
     fr = data.frequency_response()
     models: dict[str, xr.Dataset] = {}
@@ -293,21 +350,28 @@ def attitude_responses(data: CampaignData, *, sources: Sequence[str] | None = No
     out = {}
     for axis, (attitude, control) in AXES.items():
         entry = {"pair": f"{attitude}/{control}", "origin": "", "omega_ref": OMEGA_REF_DEFAULT,
-                 "responses": {}}
+                 "omega_band": None, "responses": {}, "hold_removed": []}
         if fr is not None:
             ds, origin = pair_response(fr, attitude, control)
             entry["origin"] = origin
             pair = (attitude, control)
             try:
                 sel = select_fit_data(ds, [pair], coherence_min=coherence_min, n_points=2)
-                entry["omega_ref"] = float(sel.ranges[f"{attitude}/{control}"][0])
+                band = sel.ranges[f"{attitude}/{control}"]
+                entry["omega_ref"] = float(band[0])
+                entry["omega_band"] = (float(band[0]), float(band[-1]))
             except Exception:  # noqa: BLE001 - no coherent band: keep the default reference
                 pass
             if "data" in wanted:
                 cvar = "partial_coherence" if "partial_coherence" in ds else "coherence"
                 one = ds.sel(output=attitude, input=control)
+                w = ds["frequency"].values
+                H = one["H"].values
+                if sample_hold:
+                    H = H / zero_order_hold(w, sample_hold)
+                    entry["hold_removed"].append("data")
                 entry["responses"]["data"] = (
-                    ds["frequency"].values, one["H"].values, one[cvar].values,
+                    w, H, one[cvar].values,
                     one["random_error"].values if "random_error" in ds else None)
         for name, model in models.items():
             if name not in wanted:
@@ -322,9 +386,9 @@ def attitude_responses(data: CampaignData, *, sources: Sequence[str] | None = No
                 H = T.sel(output=RATE_OF[attitude], input=control).values / (1j * grid)
             else:
                 continue
-            if sample_hold and name in TRUTH_SOURCES:
-                x = grid * sample_hold / 2.0
-                H = H * np.exp(-1j * x) * np.sinc(x / np.pi)
+            if sample_hold and name not in TRUTH_SOURCES and carries_sample_hold(model):
+                H = H / zero_order_hold(grid, sample_hold)
+                entry["hold_removed"].append(name)
             entry["responses"][name] = (grid, H, None, None)
         out[axis] = entry
     return out
@@ -363,8 +427,9 @@ def handling_qualities(data: CampaignData, *, response_type: str | Mapping[str, 
     coherence_min : float
         The coherent band whose lowest frequency fixes the phase branch (default 0.6).
     sample_hold : float, "auto" or None
-        Zero-order hold (s) applied to the truth linearisations (module docstring); "auto":
-        :func:`sample_hold_interval`.
+        The campaign's zero-order hold (s), divided out of the data and of the models fitted
+        to them so that every source describes the continuous helicopter (module
+        docstring); "auto": :func:`sample_hold_interval`; None: none.
 
     Returns
     -------
@@ -376,8 +441,9 @@ def handling_qualities(data: CampaignData, *, response_type: str | Mapping[str, 
         coherence at ``2 omega_180``; NaN for models), ``gain_180_db``, ``phase_2w180``,
         ``governing`` (str), ``level_tracking``, ``level_other`` (1-3; 0 undefined),
         ``response_type`` and ``origin`` (axis) and ``omega_ref`` (axis, rad/s). Attributes
-        ``boundaries`` (:data:`ADS33_SOURCE`), ``coherence_min``, ``truth_sample_hold_s``
-        (the hold applied to the truth sources; 0: none).
+        ``boundaries`` (:data:`ADS33_SOURCE`), ``coherence_min``, ``sample_hold_removed_s``
+        (the hold divided out of the data and the frequency-domain models; 0: none) and
+        ``sample_hold_removed_from`` (comma-separated sources).
 
     Examples
     --------
@@ -409,7 +475,8 @@ def handling_qualities(data: CampaignData, *, response_type: str | Mapping[str, 
                 continue
             w, H, g2, eps = entry["responses"][name]
             res = bandwidth_phase_delay(w, H, coherence=g2, random_error=eps,
-                                        response_type=types[axis], omega_ref=entry["omega_ref"])
+                                        response_type=types[axis], omega_ref=entry["omega_ref"],
+                                        branch_band=entry["omega_band"])
             if numeric is None:
                 numeric = {key: np.full((len(axes), len(names)), np.nan)
                            for key, v in res.items() if not isinstance(v, str)}
@@ -442,5 +509,7 @@ def handling_qualities(data: CampaignData, *, response_type: str | Mapping[str, 
                 "phase_delay": "tau_p = -(phase(2 omega_180) + 180 deg) / "
                                "(57.3 * 2 omega_180)",
                 "uncertainty": "one standard deviation from the composite random error",
-                "truth_sample_hold_s": float(hold) if hold else 0.0}
+                "sample_hold_removed_s": float(hold) if hold else 0.0,
+                "sample_hold_removed_from": ",".join(
+                    n for n in names if any(n in e["hold_removed"] for e in responses.values()))}
     return ds

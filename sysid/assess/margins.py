@@ -53,18 +53,24 @@ __all__ = ["crossings", "interp_log", "loop_margins", "broken_loop_response", "h
 MARGIN_GRID = (0.01, 200.0, 4000)
 
 
-def crossings(omega, y, level: float) -> np.ndarray:
+def crossings(omega, y, level: float, *, direction: str = "any") -> np.ndarray:
     """Frequencies (rad/s) where ``y`` crosses ``level``, interpolated linearly in log omega.
 
     ``omega`` ascending and positive, ``y`` the same shape (NaN points break the curve).
-    Returns the crossings in ascending order (empty when none); a sample exactly on the level
-    counts once.
+    ``direction``: ``"any"``, ``"down"`` (``y`` falling through the level with rising
+    frequency) or ``"up"``. Returns the crossings in ascending order (empty when none); a
+    sample exactly on the level counts once.
     """
+    if direction not in ("any", "down", "up"):
+        raise InputDataError(f"crossings: direction {direction!r}: expected 'any', 'down' "
+                             "or 'up'")
     w = np.asarray(omega, float)
     d = np.asarray(y, float) - level
     a, b = d[:-1], d[1:]
     ok = np.isfinite(a) & np.isfinite(b)
-    hit = ok & (((a < 0) & (b >= 0)) | ((a > 0) & (b <= 0)) | ((a == 0) & (b != 0)))
+    up = ((a < 0) & (b >= 0)) | ((a == 0) & (b > 0))
+    down = ((a > 0) & (b <= 0)) | ((a == 0) & (b < 0))
+    hit = ok & {"any": up | down, "down": down, "up": up}[direction]
     k = np.flatnonzero(hit)
     with np.errstate(invalid="ignore", divide="ignore"):
         t = np.where(b[k] != a[k], -a[k] / (b[k] - a[k]), 0.0)

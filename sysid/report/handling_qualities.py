@@ -12,7 +12,7 @@ the identified models).
 
 References
 ----------
-* ADS-33E-PRF, US Army AMCOM, 2000, 3.3.2.1, 3.3.5.1, 3.3.9.1.
+* ADS-33E-PRF, US Army AMCOM, 21 March 2000, 3.3.2.1 (pitch, roll), 3.3.5.1 (yaw).
 * docs/methods.md, "Handling qualities and broken-loop margins".
 """
 
@@ -33,7 +33,7 @@ from sysid.assess.margins import hold_margins
 from sysid.core.errors import InputDataError
 from sysid.data.campaign import CampaignData
 from sysid.report.figures import Context
-from sysid.report.page import esc, html_table, not_available, num
+from sysid.report.page import esc, html_table, num
 
 __all__ = ["section_handling_qualities", "hq_chart_figure"]
 
@@ -144,7 +144,8 @@ def _hq_part(ctx: Context, hq: xr.Dataset, where: str) -> str:
                            for m in MTES)])
     caption = "ADS-33E-PRF bandwidth / phase-delay charts (hover and low speed)"
     ctx.anchors["table-handling-qualities"] = "handling qualities"
-    hold = float(hq.attrs.get("truth_sample_hold_s", 0.0))
+    hold = float(hq.attrs.get("sample_hold_removed_s", 0.0))
+    removed = str(hq.attrs.get("sample_hold_removed_from", ""))
     types = sorted({str(t) for t in hq["response_type"].values})
     intro = (f"<p>Attitude responses θ/δ_lon, φ/δ_lat, ψ/δ_ped ({esc(where)}; "
              f"response type {esc(', '.join(types))}: the governing bandwidth is "
@@ -152,8 +153,9 @@ def _hq_part(ctx: Context, hq: xr.Dataset, where: str) -> str:
                 else "the phase bandwidth")
              + "). ± one standard deviation from the composite random error; γ² is the "
              "coherence at the phase bandwidth and at 2ω_180."
-             + (f" The truth linearisations include the campaign's {1e3 * hold:.0f} ms "
-                "sample-and-hold (docs/methods.md)." if hold else "")
+             + (f" The campaign's {1e3 * hold:.0f} ms sample-and-hold is divided out of "
+                f"{esc(removed.replace(',', ', '))}, so every source describes the continuous "
+                "helicopter (docs/methods.md)." if hold and removed else "")
              + f" Level boundaries: {esc(ADS33_SOURCE)}.</p>")
     return (intro + ctx.figure("handling_qualities_ads33", caption, hq_chart_figure, points,
                                ADS33_BOUNDARIES, ADS33_SOURCE)
@@ -192,9 +194,10 @@ def section_handling_qualities(ctx: Context) -> str:
     """ADS-33E-PRF charts and table of the attitude responses, and the holds' margins."""
     parts = []
     hq, where = _group_or(ctx, "handling_qualities", handling_qualities)
-    parts.append(not_available(str(hq)) if isinstance(hq, Exception)
-                 else _hq_part(ctx, hq, where))
+    # what the campaign cannot give (e.g. no attitude responses, no holds) is omitted
+    if not isinstance(hq, Exception):
+        parts.append(_hq_part(ctx, hq, where))
     margins, where = _group_or(ctx, "hold_margins", hold_margins)
-    parts.append(not_available(f"hold margins: {margins}") if isinstance(margins, Exception)
-                 else _margins_part(ctx, margins, where))
+    if not isinstance(margins, Exception):
+        parts.append(_margins_part(ctx, margins, where))
     return "".join(parts)
