@@ -61,7 +61,9 @@ def _start_when_temporary(cmd, folder: Path, name: str, *, timeout: float = 60.0
 
 
 def _import_cmd(csv: Path, campaign: Path) -> list[str]:
-    return [sys.executable, "-m", "sysid", "import", str(csv), "-o", str(campaign), "--quiet"]
+    # --replace: a try whose import finished imports the same manoeuvre again
+    return [sys.executable, "-m", "sysid", "import", str(csv), "-o", str(campaign), "--quiet",
+            "--replace"]
 
 
 def _csv(path: Path) -> Path:

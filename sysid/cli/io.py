@@ -68,8 +68,8 @@ def _import(args: argparse.Namespace) -> int:
                                       trim=trim, time=args.time, resample=resample)
         for name, ds in records.items():
             if name in datasets:
-                raise InputDataError(f"{file}: manoeuvre name {name!r} is used twice among "
-                                     "the input files")
+                raise InputDataError(f"{file}: manoeuvre name {name!r} is used by two input "
+                                     "files")
             datasets[name] = ds
             if "resample_rate_hz" in ds.attrs:
                 notes.append(_resample_note(name, ds.attrs))

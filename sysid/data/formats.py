@@ -144,7 +144,7 @@ def _is_netcdf4(path: Path) -> bool:
 
             f.visititems(visit)
             return bool(found)
-    except (OSError, RuntimeError, ValueError):
+    except Exception:  # h5py raises OSError, KeyError, RuntimeError... for broken files
         return True  # unreadable as HDF5: the netCDF reader reports it
 
 
@@ -409,8 +409,9 @@ def _read_hdf5(path: Path, matlab: bool) -> list[Group]:
             root_attrs = {} if matlab else _h5_attrs(f)
     except InputDataError:
         raise
-    except (OSError, RuntimeError, ValueError, KeyError) as exc:
-        raise InputDataError(f"cannot read {path} ({type(exc).__name__}: {exc})") from exc
+    except Exception as exc:  # h5py raises OSError, KeyError, RuntimeError... for broken files
+        raise InputDataError(f"cannot read {path} ({type(exc).__name__}: {exc}); expected "
+                             f"a {'MAT v7.3' if matlab else 'HDF5'} file") from exc
     groups = _groups_from_variables(path, variables, word)
     for group in groups:
         key = group.name if group.name is not None else ""
