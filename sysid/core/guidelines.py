@@ -73,7 +73,7 @@ GAP_MIN_STEPS = 2.0
 #: Longest gap, in typical steps, that resampling bridges by interpolation; a longer one
 #: splits the record into two manoeuvres. The cubic spline across a gap of length T departs
 #: from a component of angular frequency w by at most 5 (w T)^4 / 384 of its amplitude
-#: (the spline's error bound, C. de Boor, A Practical Guide to Splines, 1978): at 4 steps
+#: (the spline's error bound, [B78] in docs/methods.md): at 4 steps
 #: and the top of the identification band (about 20 rad/s) 0.5 % for a 100 Hz record,
 #: 8.5 % for 50 Hz, on a few samples of thousands; longer bridges would put made-up data
 #: into the spectra and fits (a project choice; same section).

@@ -27,7 +27,7 @@ References
 .. [OS] A. V. Oppenheim and R. W. Schafer, *Discrete-Time Signal Processing*, 3rd ed.,
    Pearson, 2010, Sec. 7.5 (FIR design by windowing; Hamming window: peak approximation
    error -53 dB, transition width 3.3 / N of the sample rate).
-.. [dB] C. de Boor, *A Practical Guide to Splines*, Springer, 1978 (cubic spline
+.. [B78] C. de Boor, *A Practical Guide to Splines*, Springer, 1978 (cubic spline
    interpolation; error O(h^4)).
 """
 
