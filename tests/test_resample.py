@@ -224,3 +224,42 @@ def _write_unchecked_mat73(path, name, ds):
     units = {"time": "s", **{k: ds[k].attrs.get("units") for k in ds.data_vars}}
     write_groups(path, {name: {"fields": fields, "units": units, "attrs": dict(ds.attrs)}},
                  format="mat73")
+
+
+def test_cli_resample_reports_what_it_did_and_one_logger_gives_one_rate(tmp_path, capsys):
+    """Two manoeuvres of one jittered 50 Hz logger (one with a 0.3 s gap) in a MAT v5 file:
+    ``sysid import --resample auto`` puts both on the same 50 Hz grid, splits the one with
+    the gap and prints jitter, gaps and split; the campaign holds three manoeuvres whose
+    responses can be computed together (one rate)."""
+    import scipy.io
+
+    from sysid.cli import main
+    from sysid.data import netcdf
+
+    structs = {}
+    for k, name in enumerate(("sweep_lon_1", "sweep_lon_2")):
+        t = np.arange(1500) * 0.02 + np.random.default_rng(k).uniform(-0.004, 0.004, 1500)
+        if k:
+            t = t[(t < 10.0) | (t >= 10.3)]
+        structs[name] = {"t": t, "lon": 50 + np.sin(t), "q": np.cos(3 * t)}
+    path = tmp_path / "logger.mat"
+    scipy.io.savemat(path, structs)
+    out = tmp_path / "c.nc"
+    assert main(["import", str(path), "-o", str(out), "--time", "t"]) == 1
+    assert "not uniform at sample 1" in capsys.readouterr().err and not out.exists()
+    assert main(["import", str(path), "-o", str(out), "--time", "t", "--resample",
+                 "auto"]) == 0
+    printed = capsys.readouterr().out
+    assert "sweep_lon_1: resampled to 50 Hz" in printed
+    assert "split into 2 manoeuvres at 9.9" in printed and "0 gap(s) interpolated" in printed
+    tree = netcdf.read_campaign(out)
+    names = sorted(tree["maneuvers"].children)
+    assert names == ["sweep_lon_1", "sweep_lon_2_a", "sweep_lon_2_b"]
+    steps = {float(np.diff(tree[f"maneuvers/{n}"].time.values).mean()) for n in names}
+    assert max(steps) - min(steps) < 1e-12 and abs(steps.pop() - 0.02) < 1e-12
+    for name in names:
+        ds = tree[f"maneuvers/{name}"].to_dataset()
+        t = ds.time.values + ds.attrs["time_offset"]
+        np.testing.assert_allclose(ds.q.values, np.cos(3 * t), atol=2e-4)
+    assert main(["import", str(path), "-o", str(out), "--resample", "fast"]) == 1
+    assert "--resample 'fast'" in capsys.readouterr().err

@@ -44,6 +44,10 @@ __all__ = ["ANTIALIAS_CUTOFF", "Piece", "resample_record", "piece_suffix"]
 
 #: -6 dB cutoff of the anti-aliasing FIR as a fraction of the new Nyquist frequency.
 ANTIALIAS_CUTOFF = 0.8
+#: A new rate within this fraction below the data rate counts as the same rate (no filter):
+#: covers "auto"'s rounding to 4 significant digits; what lies in the top 0.1 % of the band
+#: folds back into the top 0.1 %.
+_SAME_RATE = 1e-3
 
 
 @dataclass
@@ -133,10 +137,11 @@ def resample_record(t, values, *, rate, where: str = "record",
     values : (n, k) array
         Channels at those times (finite).
     rate : float or "auto"
-        New sample rate, Hz; ``"auto"``: the recorder's rate, ``1 / dt`` with ``dt`` the
-        slope of a least-squares line through the sample times against their nominal
-        indices (the median step finds the gaps; under jitter it is itself off by a
-        fraction of the jitter, the fitted slope is not).
+        New sample rate, Hz; ``"auto"``: the recorder's rate, ``1 / dt`` to 4 significant
+        digits (so records of one logger share it), with ``dt`` the slope of a
+        least-squares line through the sample times against their nominal indices (the
+        median step finds the gaps; under jitter it is itself off by a fraction of the
+        jitter, the fitted slope is not).
     where, label
         How errors name the record and sample ``i`` (``label(i)``).
 
@@ -180,7 +185,10 @@ def resample_record(t, values, *, rate, where: str = "record",
     if isinstance(rate, str):
         if rate != "auto":
             raise InputDataError(f"resample {rate!r}: expected a rate in Hz or 'auto'")
-        dt_new = dt
+        # To 4 significant digits: records of one logger get one rate (the spectra need it)
+        # and a 100 Hz logger gives 100 Hz, not 99.99989 Hz; the time scale moves by at most
+        # 5e-4 relative, far below what identification resolves.
+        dt_new = 1.0 / float(f"{1.0 / dt:.4g}")
     else:
         rate = float(rate)
         if not np.isfinite(rate) or rate <= 0:
@@ -213,7 +221,7 @@ def resample_record(t, values, *, rate, where: str = "record",
                 f"gaps longer than {GAP_MAX_STEPS:g} steps is too short to resample "
                 f"({tp.size} sample(s)); expected at least two steps of the new grid")
         grid = tp[0] + np.arange(n_new) * dt_new
-        if dt_new > dt * (1 + 1e-9):
+        if dt_new > dt * (1 + _SAME_RATE):
             n_fine = int(np.floor((tp[-1] - tp[0]) / dt * (1 + 1e-12))) + 1
             fine_t = tp[0] + np.arange(n_fine) * dt
             fine, text = _lowpass(_spline(tp, vp, fine_t), dt, dt_new)
