@@ -263,3 +263,20 @@ def test_cli_resample_reports_what_it_did_and_one_logger_gives_one_rate(tmp_path
         np.testing.assert_allclose(ds.q.values, np.cos(3 * t), atol=2e-4)
     assert main(["import", str(path), "-o", str(out), "--resample", "fast"]) == 1
     assert "--resample 'fast'" in capsys.readouterr().err
+
+
+def test_the_first_offending_line_is_the_first_off_the_loggers_grid(tmp_path):
+    """A logger on a 0.01 s grid for 30 samples, then fast (0.0097 s) and jittered: the
+    error names the first line off the 0.01 s grid (sample 30, line 35 after two comments,
+    a blank line and the header), not line 6 of the data (the median step, taken among
+    mostly fast steps, is off the logger's grid: the first step would be flagged)."""
+    steps = np.full(99, 0.01)
+    steps[29:] = 0.0097 + np.random.default_rng(4).uniform(-3e-4, 3e-4, 70)
+    t = np.concatenate([[0.0], np.cumsum(steps)])
+    assert abs(np.median(steps) - 0.01) > 1e-4
+    lines = ["# logger v2", "# second comment", "", "time [s],q [deg/s]"]
+    lines += [f"{a:.17g},{np.sin(a):.17g}" for a in t]
+    path = tmp_path / "f.csv"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputDataError, match=r"not uniform at line 35: .*expected 0\.01"):
+        importers.read_time_history(path)

@@ -82,9 +82,7 @@ def _check_time_grid(t: np.ndarray, where: str, row_label=None, rtol: float = TI
         raise InputDataError(
             f"{where}: time is not strictly increasing at {label(i)}: "
             f"t = {float(t[i])!r} after {float(t[i - 1])!r}")
-    # The typical step is the median one: a single gap must be reported where it is, not
-    # at the first sample (which a mean step stretched by the gap would make look off).
-    dt = float(np.median(steps))
+    dt = _typical_step(steps, rtol)
     off = np.flatnonzero(np.abs(steps - dt) > rtol * dt)
     if off.size:
         i = off[0] + 1
@@ -92,6 +90,22 @@ def _check_time_grid(t: np.ndarray, where: str, row_label=None, rtol: float = TI
             f"{where}: time is not uniform at {label(i)}: step {float(steps[i - 1])!r} s, "
             f"expected {float(dt)!r} s (relative tolerance {rtol:g}); {_RESAMPLE_HINT}")
     return float((t[-1] - t[0]) / (t.size - 1))
+
+
+def _typical_step(steps: np.ndarray, rtol: float) -> float:
+    """The step most samples share (to ``rtol``), else the median step.
+
+    The first offending sample is then the first one off the logger's own grid: with a gap
+    (a mean step stretched by it would flag sample 1), and with jitter only in part of the
+    record (a median taken among jittered steps would flag sample 1 too).
+    """
+    median = float(np.median(steps))
+    ordered = np.sort(steps)
+    # longest run of sorted steps within rtol * median of its first one
+    ends = np.searchsorted(ordered, ordered + rtol * median, side="right")
+    k = int(np.argmax(ends - np.arange(ordered.size)))
+    run = ordered[k:ends[k]]
+    return float(np.median(run)) if run.size > 1 else median
 
 
 def validate_time_history(ds: xr.Dataset, required=(), name: str | None = None,
