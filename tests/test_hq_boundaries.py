@@ -123,6 +123,17 @@ def test_branch_is_right_when_the_band_starts_where_the_phase_is_positive():
     assert out["tau_p"] == pytest.approx(tau_p, abs=2e-4)
 
 
+def test_without_a_minus_180_crossing_the_phase_bandwidth_governs():
+    """K / (s (s + a)) never reaches -180 deg: its phase bandwidth is a (phase -90 - 45),
+    omega_180, the gain bandwidth and tau_p are undefined (a quasi-steady model)."""
+    a = 2.5
+    w = np.logspace(-1, 2, 3000)
+    out = bandwidth_phase_delay(w, 4.0 / (1j * w * (1j * w + a)))
+    assert out["bandwidth_phase"] == pytest.approx(a, rel=1e-4)
+    assert out["bandwidth"] == pytest.approx(a, rel=1e-4) and out["governing"] == "phase"
+    assert all(math.isnan(out[k]) for k in ("omega_180", "bandwidth_gain", "tau_p"))
+
+
 # -- the campaign's zero-order hold -----------------------------------------------------------
 
 

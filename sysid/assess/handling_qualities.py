@@ -179,7 +179,8 @@ def bandwidth_phase_delay(omega, H, *, coherence=None, random_error=None,
         ``tau_p`` (s), ``gain_180_db`` (dB), ``phase_2w180`` (deg), ``coherence_<q>`` at
         ``omega_180``, each bandwidth and ``2 omega_180`` (``coherence_tau_p``),
         ``<q>_std`` (one standard deviation), ``governing`` (``"phase"``/``"gain"``/``""``).
-        NaN where a crossing is not on the grid.
+        NaN where a crossing is not on the grid; without a -180 deg crossing the phase
+        bandwidth governs and ``omega_180``, the gain bandwidth and ``tau_p`` are NaN.
 
     Examples
     --------
@@ -219,14 +220,15 @@ def bandwidth_phase_delay(omega, H, *, coherence=None, random_error=None,
     gain = 20.0 * np.log10(np.abs(Hk))
     above = lambda xs: xs[xs >= ref]  # noqa: E731
     c180 = above(crossings(w, phase, -180.0, direction="down"))
-    if c180.size == 0:
-        return out
-    w180 = float(c180[0])
+    # no -180 deg on the grid (a model without rotor lag or delay): omega_180, the gain
+    # bandwidth and tau_p are undefined, the phase bandwidth is the last -135 deg crossing
+    w180 = float(c180[0]) if c180.size else nan
     g180 = float(interp_log(w, gain, w180))
     out.update(omega_180=w180, gain_180_db=g180)
-    below = lambda xs: xs[(xs >= ref) & (xs <= w180)]  # noqa: E731
+    top = w180 if c180.size else math.inf
+    below = lambda xs: xs[(xs >= ref) & (xs <= top)]  # noqa: E731
     cp = below(crossings(w, phase, -135.0, direction="down"))
-    cg = below(crossings(w, gain, g180 + 6.0))
+    cg = below(crossings(w, gain, g180 + 6.0)) if c180.size else np.empty(0)
     bw_p = float(cp[-1]) if cp.size else nan
     bw_g = float(cg[-1]) if cg.size else nan
     w2 = 2.0 * w180
