@@ -48,7 +48,7 @@ def _resample(value: str | None):
         rate = float("nan")
     if not rate > 0 or rate == float("inf"):
         raise InputDataError(f"--resample {value!r}: expected a rate in Hz (e.g. 50) or "
-                             "'auto' (the record's median step)")
+                             "'auto' (the logger's own rate)")
     return rate
 
 
@@ -151,8 +151,8 @@ def register(subparsers) -> None:
                    help="name of the time column/field (default: time, or t)")
     p.add_argument("--resample", metavar="RATE|auto",
                    help="put records with clock jitter or missing samples on a uniform grid "
-                        "at RATE Hz (auto: the median step), anti-aliased when RATE is "
-                        "below the data rate; a gap longer than "
+                        "at RATE Hz (auto: the logger's own rate), anti-aliased when RATE "
+                        "is below the data rate; a gap longer than "
                         f"{GAP_MAX_STEPS:g} steps splits the record into NAME_a, NAME_b")
     p.add_argument("--replace", action="store_true",
                    help="replace manoeuvres the campaign already holds and remove the "

@@ -86,8 +86,8 @@ class Group:
     ``fields``: name -> numpy array (numeric, squeezed to the array's own shape) or str;
     ``units``: field -> unit string; ``attrs``: the manoeuvre's attributes (decoded);
     ``where``: how messages name it (``file F, struct 'S'``); ``name``: the struct/group
-    name (None for the flat layout: the caller uses the file stem); ``sample``: the word
-    messages use for a position in a vector.
+    name (None for the flat layout: the caller uses the file stem); ``ignored``: what was
+    found but is not a numeric array (nested structs, char fields, other top-level data).
     """
 
     where: str

@@ -417,8 +417,7 @@ def _table_from_group(group: Group, mapping: dict, time: str) -> _Table:
     attrs = dict(group.attrs)
     if ignored:
         attrs.setdefault("ignored_fields", ", ".join(ignored))
-    missing_time_samples = t.size < 2
-    if missing_time_samples:
+    if t.size < 2:
         raise InputDataError(f"{group.where}: time {word} {time_col!r} has {t.size} "
                              "sample(s); expected at least 2")
     rows = np.column_stack([np.asarray(d, dtype=float) for d in data])
@@ -599,7 +598,7 @@ def read_time_histories(path: str | os.PathLike, *, mapping: Mapping[str, str] |
     resample
         ``None``: a record off a uniform grid is refused (the error names the first
         offending file line for CSV, sample index otherwise, and suggests resampling).
-        A rate in Hz, or ``"auto"`` (the record's median step): the record is put on a
+        A rate in Hz, or ``"auto"`` (the logger's own rate, 4 significant digits): put on a
         uniform grid by :func:`sysid.data.resample.resample_record` (cubic spline; a
         zero-phase Hamming FIR anti-aliasing filter first when the new rate is below the
         data rate; gaps up to :data:`sysid.core.guidelines.GAP_MAX_STEPS` steps bridged,
