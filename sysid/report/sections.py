@@ -30,6 +30,9 @@ from sysid.assess.envelopes import check_envelope, mismatch
 from sysid.core.guidelines import BIAS_BOUNDS_MAX, GUIDELINES
 from sysid.assess.comparison import BIAS_MEANING, fidelity_scoreboard
 from sysid.identify.statistics import guideline_mark
+from sysid.core.errors import InputDataError
+from sysid.models import model_from_dataset
+from sysid.truth.linearize import truth_for_structure
 from sysid.spectral.response import NO_TRANSIENT_GROUP
 from sysid.core.units import CHANNELS, CONTROLS, STATES_6DOF
 from sysid.report.figures import Context
@@ -70,11 +73,15 @@ _SYMBOL = {"phi": "φ", "theta": "θ", "psi": "ψ"}
 _TRUTH = "linearization"
 
 
-def _pairs_present(fr: xr.Dataset) -> list[str]:
-    """Paper pairs whose output and input are in the frequency response and carry data."""
+def _pairs_present(fr: xr.Dataset, models: Mapping[str, xr.Dataset] | None = None
+                   ) -> list[str]:
+    """Paper pairs, then the other pairs some model was fitted to (e.g. ``ax/lon`` where an
+    accelerometer stands for an unmeasured ``u``), whose output and input are in the
+    frequency response and carry data."""
     out = []
     H = read.as_complex(fr["H"])
-    for pair in PAPER_PAIRS:
+    fitted = [p for m in (models or {}).values() for p in read.pair_costs(m)]
+    for pair in dict.fromkeys([*PAPER_PAIRS, *fitted]):
         o, i = pair.split("/")
         if o in H.output.values and i in H.input.values:
             if np.any(np.isfinite(H.sel(output=o, input=i).values)):
@@ -99,7 +106,7 @@ def section_trim(ctx: Context) -> str:
     """Trim table like the paper's Table 1."""
     found = read.trim_values(ctx.tree)
     if found is None:
-        return not_available("no /trim group and no trim_* attributes on any manoeuvre")
+        return ""  # no trim: the section is omitted
     values, attrs, source = found
     ctx.anchors["table-trim"] = "Table 1 — trim"
     left = [(f"{_SYMBOL.get(k, k)}₀", f"{num(values[k], '.2f')} {CHANNELS[k].unit}")
@@ -130,7 +137,7 @@ def section_inputs(ctx: Context) -> str:
     sweeps = {n: m for n, m in read.maneuvers(ctx.tree).items()
               if m.attrs.get("kind") == "sweep" or n.startswith("sweep")}
     if not sweeps:
-        return not_available("no sweep manoeuvres under /maneuvers")
+        return ""
     parts = []
     for name, m in sweeps.items():
         controls = {k: m[k].values for k in CONTROLS if k in m}
@@ -153,7 +160,7 @@ def section_conditioning(ctx: Context) -> str:
     fr = read.dataset(ctx.tree, "frequency_response")
     siso = read.dataset(ctx.tree, "frequency_response_siso")
     if fr is None or "H" not in fr:
-        return not_available("no /frequency_response group")
+        return ""
     parts = []
     omega = fr["frequency"].values
     pairs = [p for p in CONDITIONING_PAIRS if p in _pairs_present(fr)]
@@ -294,15 +301,15 @@ def section_pairs(ctx: Context, results: dict[str, PairResult]) -> str:
     (paper Figures 4-15). Fills ``results`` for the guideline summary."""
     fr = read.dataset(ctx.tree, "frequency_response")
     if fr is None or "H" not in fr:
-        return not_available("no /frequency_response group")
-    pairs = _pairs_present(fr)
+        return ""
+    models = read.models(ctx.tree)
+    pairs = _pairs_present(fr, models)
     if not pairs:
-        return not_available("none of the paper's input/output pairs in /frequency_response")
+        return ""
     omega = fr["frequency"].values
     H = read.as_complex(fr["H"])
     coh = read.coherence(fr)
     sources = _sources(ctx)
-    models = read.models(ctx.tree)
     bounds_ds = ctx.envelope.bounds(omega)
     bounds = {k: bounds_ds[k].values for k in bounds_ds.data_vars}
     responses = {n: ctx.model_response(n, m, omega) for n, m in sources.items()}
@@ -384,7 +391,6 @@ def section_time(ctx: Context) -> dict:
     nodes = read.children(ctx.tree, "verification")
     out = {"html": "", "j_rms": {}, "tic": {}}
     if not nodes:
-        out["html"] = not_available("no /verification groups")
         return out
     maneuvers = read.maneuvers(ctx.tree)
     parts = []
@@ -479,10 +485,25 @@ def _truth_value(lin: xr.Dataset | None, name: str, ref: xr.Dataset) -> float:
         return np.nan
 
 
+def _truth_for(tree: xr.DataTree, model: xr.Dataset, lin: xr.Dataset | None
+               ) -> xr.Dataset | None:
+    """The truth a model's parameters are compared with: the linearisation, or for a model
+    with states it lacks (e.g. flapping) the full one reduced to the model's structure."""
+    full = read.dataset(tree, "linearization_full")
+    if lin is None or full is None or "A" not in model or set(
+            map(str, model["A"].state.values)) <= set(map(str, lin["A"].state.values)):
+        return lin
+    try:
+        return truth_for_structure(full, model_from_dataset(model)[0])
+    except (ValueError, KeyError, InputDataError):  # e.g. outputs the FMU has not
+        return lin
+
+
 def _derivative_rows(ctx: Context, models: dict[str, xr.Dataset], kinds: tuple[str, ...]
                      ) -> tuple[list[str], list[list[str]]]:
     """Rows of a derivative table for the parameters of matrices ``kinds``."""
     lin = read.linearization(ctx.tree)
+    truth = {m: _truth_for(ctx.tree, ds, lin) for m, ds in models.items()}
     dropped = {m: read.dropped(ctx.tree, m, ds) for m, ds in models.items()}
     names: list[str] = []
     owner: dict[str, str] = {}
@@ -499,14 +520,15 @@ def _derivative_rows(ctx: Context, models: dict[str, xr.Dataset], kinds: tuple[s
                 names.append(nm)
                 owner[nm] = m
     corrected = {m: "cramer_rao_percent_corrected" in ds for m, ds in models.items()}
-    header = ["parameter", "truth"]
+    header = ["parameter"] + (["truth"] if lin is not None else [])
     for m in models:
         header += [f"{m}: value", f"{m}: CR %"]
         header += [f"{m}: CRc %"] if corrected[m] else []
         header += [f"{m}: I %", f"{m}: guidelines"]
     rows = []
     for nm in names:
-        row = [nm, num(_truth_value(lin, nm, models[owner[nm]]))]
+        row = [nm] + ([num(_truth_value(truth[owner[nm]], nm, models[owner[nm]]))]
+                      if lin is not None else [])
         for m, ds in models.items():
             width = 5 if corrected[m] else 4
             if "parameter" not in ds.dims or nm not in ds["parameter"].values:
@@ -541,11 +563,12 @@ def section_derivatives(ctx: Context) -> str:
     Cramer-Rao bounds and insensitivities in percent, and the truth linearisation's value."""
     models = read.models(ctx.tree)
     if not any("parameter" in m.dims for m in models.values()):
-        return not_available("no identified models with parameters under /models")
+        return ""
     parts = ['<p>Values in analysis units (ft/s, deg/s, deg, % of travel; delays in s). '
              'CR %: Cramer-Rao bound, I %: insensitivity, both in percent of |value| '
              '(frequency domain: CIFER convention, docs/methods.md, "Accuracy"); CRc %: the '
-             'time-domain bound corrected for coloured residuals; '
+             'bound corrected for the residuals (time domain: coloured residuals; frequency '
+             'domain: the CIFER bound scaled by the fit residuals); '
              '"dropped": removed by model reduction; "fixed": held at the value shown; '
              f'"{DASH}": not in that model. &#9888; marks a parameter above the '
              f'{GUIDELINES["cramer_rao_percent"]:g} % Cramer-Rao guideline (on the larger '
@@ -576,11 +599,10 @@ def section_fidelity(ctx: Context) -> str:
     models = {m: ds for m, ds in read.models(ctx.tree).items()
               if "parameter" in ds.dims and "cramer_rao" in ds}
     if not models:
-        return not_available("no identified models with bounds under /models")
+        return ""
     truth = read.dataset(ctx.tree, "linearization")
-    if truth is None:
-        return not_available("no truth linearisation (/linearization): the scoreboard needs a "
-                             "truth to measure the errors against")
+    if truth is None:  # no truth to measure the errors against: omitted
+        return ""
     board = fidelity_scoreboard(models, truth)
     names = [str(n) for n in board.parameter.values
              if np.isfinite(float(board["truth"].sel(parameter=n)))]
@@ -646,7 +668,7 @@ def section_guidelines(ctx: Context, pair_results: dict[str, PairResult], time: 
     models = read.models(ctx.tree)
     columns = list(models) + [s for s in time["j_rms"] if s not in models]
     if not columns and not pair_results:
-        return not_available("no models, verification or frequency-response data")
+        return ""
     g = GUIDELINES
     rows = []
 
@@ -738,7 +760,7 @@ def section_reduction(ctx: Context) -> str:
         rows = [[str(k + 1)] + [_format_cell(s.get(key)) for key in keys]
                 for k, s in enumerate(steps)]
         parts.append(f"<h3>{esc(m)}</h3>" + html_table(["step"] + keys, rows, "numeric"))
-    return "".join(parts) or not_available("no model reduction recorded under /models")
+    return "".join(parts)
 
 
 def _format_cell(value) -> str:
@@ -787,8 +809,7 @@ def section_provenance(ctx: Context) -> str:
     if timings:
         rows.append(["workflow stage times", ", ".join(timings)])
     toml = root.get("campaign_toml")
-    settings = (f"<h3>Campaign settings</h3><pre>{esc(toml)}</pre>" if toml
-                else not_available("no campaign_toml attribute on the root group"))
+    settings = f"<h3>Campaign settings</h3><pre>{esc(toml)}</pre>" if toml else ""
     return (html_table(["item", "value"], rows, "provenance", table_id="table-provenance")
             + settings)
 
@@ -809,8 +830,9 @@ SECTIONS = (
 )
 
 
-def index(ctx: Context) -> str:
-    """Map every paper figure/table number to the report anchors that reproduce it."""
+def index(ctx: Context, sections=SECTIONS) -> str:
+    """Map every paper figure/table number to the report anchors that reproduce it;
+    ``sections`` are the ones on the page (default all)."""
     def link(anchor: str, text: str) -> str:
         return f'<a href="#{anchor}">{esc(text)}</a>'
 
@@ -852,7 +874,7 @@ def index(ctx: Context) -> str:
                      link(tid, "table") if tid in ctx.anchors else "not available"])
     body = "".join(f"<tr><td>{r[0]}</td><td>{esc(r[1])}</td><td>{r[2]}</td></tr>"
                    for r in rows)
-    sections = " · ".join(link(a, h) for a, h, _ in SECTIONS)
+    sections = " · ".join(link(a, h) for a, h, _ in sections)
     return (f'<nav id="index"><h2>Index</h2><p>Sections: {sections}</p>'
             f'<table id="table-index"><thead><tr><th>paper item</th><th>content</th>'
             f'<th>in this report</th></tr></thead><tbody>{body}</tbody></table></nav>')
