@@ -446,6 +446,45 @@ def cifer_cost(structure: LinearStructure, data: FitData, theta=None) -> dict[st
 # --------------------------------------------------------------------------------------------
 
 
+def with_derived_states(fr: xr.Dataset, structure: LinearStructure) -> xr.Dataset:
+    """``fr`` (``H`` and the coherences) plus the responses of the states it lacks that an
+    output equation measures as a pure derivative: an output ``y = x_i' - K_i x`` (an
+    accelerometer at the CG, ``ax = u' - K_u x``) gives ``H_x_i = (H_y + K_i H_x) / s``
+    when every state ``K_i`` reads is in ``fr``; its coherence is the output's. Used for
+    equation-error start values of data without ``u v w`` (Tischler & Remple 2012, ch. 11).
+    """
+    st = structure
+    outs = [str(x) for x in fr["output"].values]
+    names, rows = [], {}
+    for i, state in enumerate(st.states):
+        if state in outs:
+            continue
+        for o, out in enumerate(st.outputs):
+            m = st.M[o]
+            reads = [st.states[j] for j in np.flatnonzero(st.K[i])]
+            if (out in outs and m[i] == 1.0 and np.count_nonzero(m) == 1
+                    and not st.C0[o].any() and not st.D0[o].any()
+                    and all(r in outs for r in reads)):
+                names.append(state)
+                rows[state] = (out, {r: float(st.K[i, st.states.index(r)]) for r in reads})
+                break
+    if not names:
+        return fr
+    s = 1j * xr.DataArray(np.asarray(fr["frequency"].values, float), dims="frequency",
+                          coords={"frequency": fr["frequency"]})
+    H, cohs = [], {v: [] for v in ("coherence", "partial_coherence") if v in fr}
+    for state in names:
+        out, reads = rows[state]
+        h = fr["H"].sel(output=out) + sum(k * fr["H"].sel(output=r) for r, k in reads.items())
+        H.append((h / s.where(s != 0)).assign_coords(output=state))
+        for v in cohs:
+            cohs[v].append(fr[v].sel(output=out).assign_coords(output=state))
+    new = xr.Dataset({"H": xr.concat([fr["H"], *H], dim="output"),
+                      **{v: xr.concat([fr[v], *c], dim="output") for v, c in cohs.items()}},
+                     attrs=fr.attrs)
+    return new
+
+
 def equation_error_start(fr: xr.Dataset, structure: LinearStructure, data: FitData | None = None,
                          *, coherence_min: float = COHERENCE_MIN) -> np.ndarray:
     """Start values of the free parameters from a frequency-domain equation-error fit.
@@ -458,6 +497,9 @@ def equation_error_start(fr: xr.Dataset, structure: LinearStructure, data: FitDa
     ``|s H_ik|`` (relative equation error, so all frequencies count alike) and weighted by
     ``sqrt(W_gamma)``.
 
+    States without a response of their own whose derivative an output measures (``u v w``
+    from ``ax ay az``) are derived first (:func:`with_derived_states`).
+
     Free delays enter through the first-order expansion ``B_ik e^{-s tau} ~ B_ik - s c_ik``
     with ``c_ik = B_ik tau`` as an extra unknown, so ``tau = c/B`` (least squares over the
     delay's entries, clipped to its bounds). Parameters that no equation determines (rows
@@ -466,6 +508,7 @@ def equation_error_start(fr: xr.Dataset, structure: LinearStructure, data: FitDa
     st = structure
     theta = st.theta0.copy()
     states = list(st.states)
+    fr = with_derived_states(fr, st)
     fr_out = [str(x) for x in fr["output"].values]
     fr_in = [str(x) for x in fr["input"].values]
     if not all(s in fr_out for s in states):

@@ -189,16 +189,18 @@ class _Study:
     """The stages of :func:`run_study`. Every stage's cache key hashes its settings and the
     keys of the stages it reads, so each key is known without running anything."""
 
+    #: The responses' outputs, the frequency-domain fit's pairs (None: the paper's) and the
+    #: time-domain fit's start (:data:`sysid.identify.stages.TIME_DOMAIN_STARTS`); flight
+    #: data without a truth model set others (:mod:`sysid.pipeline.flight_data`).
+    outputs: tuple[str, ...] = STATES_6DOF
+    fd_pairs: tuple[tuple[str, str], ...] | None = None
+    td_start: str = "linearization"
+    #: Whether the exported models are run beside the truth FMU (not for flight data).
+    with_truth: bool = True
+
     def __init__(self, out_dir: str | Path, settings: StudySettings, *, quiet: bool,
                  log: TextIO | None = None):
-        self.settings = settings
-        self.out = Path(out_dir)
-        self.out.mkdir(parents=True, exist_ok=True)
-        self.path = self.out / "campaign.nc"
-        self.quiet = quiet
-        self.progress = Progress(quiet=quiet, stream=log if log is not None else sys.stderr)
-        self.log = log if log is not None else (None if quiet else sys.stdout)
-        self._campaign_data: CampaignData | None = None
+        self.open(out_dir, settings, quiet=quiet, log=log)
         self.fmu_path = build_fmu()
         if settings.campaign_file:
             self.campaign = Campaign.from_toml(settings.campaign_file)
@@ -219,6 +221,18 @@ class _Study:
         self.fit_keys = {"frequency_domain": self.key_fd, "time_domain": self.key_td}
 
     # -- helpers
+    def open(self, out_dir: str | Path, settings: StudySettings, *, quiet: bool,
+             log: TextIO | None) -> None:
+        """The output folder, the campaign file's path, progress and log streams."""
+        self.settings = settings
+        self.out = Path(out_dir)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.path = self.out / "campaign.nc"
+        self.quiet = quiet
+        self.progress = Progress(quiet=quiet, stream=log if log is not None else sys.stderr)
+        self.log = log if log is not None else (None if quiet else sys.stdout)
+        self._campaign_data = None
+
     def print(self, text: str) -> None:
         """A stage's table to the study's log (nothing when quiet without a log)."""
         if self.log is not None:
@@ -270,34 +284,39 @@ class _Study:
     # 1-2. Campaign (trim and linearisation included) on the truth FMU; conditioned
     #      composite responses, and the unconditioned ones for comparison.
     def data(self) -> None:
-        settings = self.settings
+        self.campaign_stage("campaign", lambda: run_campaign(
+            self.campaign, quiet=self.quiet, fmu=self.fmu_path, summaries=[campaign_summary]))
+        self.responses()
 
-        def fly() -> dict:
-            return {"/": run_campaign(self.campaign, quiet=self.quiet, fmu=self.fmu_path,
-                                      summaries=[campaign_summary])}
-
-        flown = self.stage("campaign", self.path, "maneuvers", self.key_campaign, fly)
-        if flown is not None:
+    def campaign_stage(self, name: str, make: Callable[[], xr.DataTree]) -> None:
+        """The campaign tree (``make()``) unless the file holds the current one."""
+        made = self.stage(name, self.path, "maneuvers", self.key_campaign,
+                          lambda: {"/": make()})
+        if made is not None:
             # A new campaign replaces the file and everything derived from the old one.
-            write_campaign(flown["/"], self.path)
-            self._campaign_data = CampaignData(flown["/"], source=str(self.path))
+            write_campaign(made["/"], self.path)
+            self._campaign_data = CampaignData(made["/"], source=str(self.path))
+
+    def responses(self) -> None:
+        """Conditioned composite responses of the sweeps, and the unconditioned ones."""
+        settings = self.settings
 
         def responses() -> dict:
             records = self.campaign_data.maneuvers(settings.sweep_maneuvers)
             self.progress.message(f"[sysid] frequency response from {len(records)} "
                                   f"record(s): {', '.join(records)}")
-            composite = frequency_response(records, CONTROLS, STATES_6DOF,
+            composite = frequency_response(records, CONTROLS, self.outputs,
                                            progress=self.progress,
                                            transient_states=settings.transient_states)
             states = list(composite.attrs["transient_states"])
             self.print("leakage conditioning: " + (", ".join(states) if states else "off"))
             self.print(format_coherent_ranges(composite))
-            siso = siso_frequency_response(list(records.values()), CONTROLS, STATES_6DOF)
+            siso = siso_frequency_response(list(records.values()), CONTROLS, self.outputs)
             groups = {"frequency_response": composite, "frequency_response_siso": siso}
             # The paper's plain conditioned estimate, for the report's comparison; when the
             # default is already plain, an empty group that says so (no stale copy is left).
             groups[NO_TRANSIENT_GROUP] = (
-                frequency_response(records, CONTROLS, STATES_6DOF, transient_states=())
+                frequency_response(records, CONTROLS, self.outputs, transient_states=())
                 if states else xr.Dataset(attrs={
                     "note": "leakage conditioning off: /frequency_response is this estimate"}))
             return groups
@@ -335,6 +354,7 @@ class _Study:
         self.fit("frequency_domain", "frequency-domain identification",
                  lambda: fit_frequency_domain(self.campaign_data, structure=settings.structure,
                                               coherence_min=settings.fd_coherence,
+                                              pairs=self.fd_pairs,
                                               progress=self.progress))
 
     # 4. Time-domain identification on the multisteps, started from the linearisation.
@@ -344,7 +364,7 @@ class _Study:
         self.fit("time_domain", "time-domain identification",
                  lambda: fit_time_domain(self.campaign_data,
                                          maneuvers=settings.time_domain_maneuvers,
-                                         structure=settings.structure, start="linearization",
+                                         structure=settings.structure, start=self.td_start,
                                          progress=self.progress))
 
     def merge_models(self) -> None:
@@ -393,7 +413,8 @@ class _Study:
 
         # 7. Export both models as FMUs and validate them against the truth FMU and the data.
         def validation() -> dict:
-            truth, trim = truth_reference(self.campaign_data)
+            truth, trim = (truth_reference(self.campaign_data) if self.with_truth
+                           else (None, "none for flight data"))
             if truth is None:
                 self.print(f"time-domain comparison with the truth FMU: {trim}")
                 trim = None
