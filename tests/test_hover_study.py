@@ -1,6 +1,7 @@
 """The paper's hover study on the truth FMU, end to end (the README's main command).
 
-One module-scoped run of :func:`sysid.pipeline.study.run_study` with the default campaign
+The session's run of :func:`sysid.pipeline.study.run_study` (``hover_study`` in conftest.py,
+shared with the other modules) with the default campaign
 (sensor noise and light turbulence on, fixed seed) feeds every check here but a few, which fly
 the campaign's sweeps at other amplitudes and lateral rises, or in the linear regime, to show
 where q/lon's former miss of MUAD came from; each assertion is
@@ -27,12 +28,10 @@ CYCLIC_DELAYS = ("tau_M_lon", "tau_L_lon", "tau_L_lat", "tau_M_lat")
 
 
 @pytest.fixture(scope="module")
-def study(tmp_path_factory, truth_fmu):
-    from sysid.pipeline.study import StudySettings, run_study, study_tree
-
-    out = tmp_path_factory.mktemp("hover_study")
-    report = run_study(out, StudySettings(), quiet=True)
-    return {"dir": out, "report": report, "tree": study_tree(out)}
+def study(hover_study):
+    """The session's hover study (conftest.py), shared with the other modules that read it:
+    the suite runs the study once (it ran twice, ~75 s each, when this module had its own)."""
+    return hover_study
 
 
 def _perturbation(ds: xr.Dataset, channel: str) -> np.ndarray:
