@@ -11,6 +11,7 @@ import h5py
 import numpy as np
 import pytest
 import scipy.io
+import scipy.sparse
 import xarray as xr
 
 from sysid.cli import main
@@ -226,9 +227,18 @@ def test_unsupported_files_and_classes_are_refused_clearly(tmp_path):
     assert sniff_format(v4) == "mat4"
     with pytest.raises(InputDataError, match="MAT v4 file.*-v7"):
         importers.read_time_histories(v4)
-    cell = _mat5(tmp_path, {"run1": {"time": t, "names": np.array(["a", "bb"], dtype=object)}})
+    # A channel-name cell beside the vectors is skipped and listed; needed, it is refused.
+    cell = _mat5(tmp_path, {"run1": {"time": t, "q": t,
+                                     "names": np.array(["a", "bb"], dtype=object)}})
+    ds = importers.read_time_histories(cell)["run1"]
+    assert list(ds.data_vars) == ["q"] and "names (cell" in ds.attrs["ignored_fields"]
     with pytest.raises(InputDataError, match=r"run1'.names: MATLAB class cell"):
-        importers.read_time_histories(cell)
+        importers.read_time_histories(cell, mapping={"q": "q", "r": "names"})
+    with pytest.raises(InputDataError, match=r"run1'.names: MATLAB class cell"):
+        importers.read_time_histories(cell, time="names")
+    sparse = _mat5(tmp_path, {"run1": {"time": t, "q": scipy.sparse.csc_matrix(t[:, None])}})
+    with pytest.raises(InputDataError, match=r"run1'.q: MATLAB class sparse"):
+        importers.read_time_histories(sparse, mapping={"q": "q"})
     path = tmp_path / "cell73.mat"
     with h5py.File(path, "w", userblock_size=512) as f:
         f["#refs#/a"] = np.zeros((1, 1))
@@ -243,7 +253,8 @@ def test_unsupported_files_and_classes_are_refused_clearly(tmp_path):
         fh.write(b"MATLAB 7.3 MAT-file".ljust(116) + bytes(8) + b"\x00\x02IM")
     with pytest.raises(InputDataError, match=r"'run1'.names: MATLAB class 'cell' is not "
                                              "supported"):
-        importers.read_time_histories(path)
+        importers.read_time_histories(path, mapping={"q": "names"})
+    assert "names (cell)" in importers.read_time_histories(path)["run1"].attrs["ignored_fields"]
     broken = tmp_path / "broken.mat"
     broken.write_bytes(b"MATLAB 5.0 MAT-file" + bytes(200))
     with pytest.raises(InputDataError, match="broken.mat"):

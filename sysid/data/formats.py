@@ -24,8 +24,10 @@ Layouts read
     numeric vectors is one manoeuvre of those vectors (named by the file). Numeric classes
     (``double single int* uint* logical``) and char are read; cell arrays, struct arrays,
     sparse, complex, objects, strings and function handles are refused with an error
-    naming the variable and its class. MAT v4 files are refused (re-save them with ``-v7``
-    or ``-v7.3``).
+    naming the variable and its class when they are the time vector or a mapped channel,
+    and otherwise skipped and listed in the manoeuvre's ``ignored_fields`` (flight-test
+    files often carry channel-name cells and such). MAT v4 files are refused (re-save them
+    with ``-v7`` or ``-v7.3``).
 
 MAT v7.3 facts used (public MathWorks descriptions of the format and the hdf5storage
 package's storage-format documentation): an HDF5 file with a 512-byte user block whose first
@@ -63,7 +65,7 @@ from sysid.core.errors import InputDataError
 from sysid.core.util import atomic_path
 from sysid.data.netcdf import decode_attrs, encode_attrs, json_default
 
-__all__ = ["FORMATS", "Group", "sniff_format", "read_groups", "write_groups",
+__all__ = ["FORMATS", "Group", "Unsupported", "sniff_format", "read_groups", "write_groups",
            "matlab_name", "METADATA_FIELDS"]
 
 #: Formats :func:`write_groups` writes.
@@ -77,6 +79,16 @@ _USER_BLOCK = 512
 _NUMERIC_CLASSES = ("double", "single", "int8", "uint8", "int16", "uint16", "int32",
                     "uint32", "int64", "uint64", "logical")
 _MATLAB_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,62}")
+
+
+@dataclass(frozen=True)
+class Unsupported:
+    """A variable of a class sysid does not read (cell, sparse, complex, ...): refused with
+    ``message`` only when it is needed (the time vector or a mapped channel); otherwise
+    listed in ``ignored_fields``, since flight-test files often carry such metadata."""
+
+    message: str
+    cls: str
 
 
 @dataclass
@@ -96,6 +108,7 @@ class Group:
     units: dict = field(default_factory=dict)
     attrs: dict = field(default_factory=dict)
     ignored: list = field(default_factory=list)
+    unsupported: dict = field(default_factory=dict)  #: field -> Unsupported
 
 
 # --------------------------------------------------------------------------------------------
@@ -188,7 +201,10 @@ def read_groups(path: str | os.PathLike, kind: str) -> list[Group]:
 
 def _split_metadata(where: str, name, fields: dict, units: dict, attrs: dict) -> Group:
     """A Group from raw fields: ``units`` (struct of char) and ``sysid_attrs`` (JSON char)
-    become metadata."""
+    become metadata; unsupported classes are kept aside (``Group.unsupported``)."""
+    for key in METADATA_FIELDS:
+        if isinstance(fields.get(key), Unsupported):
+            raise InputDataError(fields[key].message)
     unit_field = fields.pop("units", None)
     if unit_field is not None:
         if not isinstance(unit_field, dict):
@@ -215,7 +231,10 @@ def _split_metadata(where: str, name, fields: dict, units: dict, attrs: dict) ->
         attrs.update(decoded)
     group = Group(where=where, name=name, units=units, attrs=attrs)
     for key, value in fields.items():
-        if isinstance(value, dict):
+        if isinstance(value, Unsupported):
+            group.unsupported[key] = value
+            group.ignored.append(f"{key} ({value.cls})")
+        elif isinstance(value, dict):
             group.ignored.append(f"{key} (struct)")
         elif isinstance(value, str):
             group.ignored.append(f"{key} (char)")
@@ -225,6 +244,8 @@ def _split_metadata(where: str, name, fields: dict, units: dict, attrs: dict) ->
 
 
 def _describe(value) -> str:
+    if isinstance(value, Unsupported):
+        return f"MATLAB class {value.cls}"
     if isinstance(value, dict):
         return "a struct"
     if isinstance(value, str):
@@ -238,8 +259,8 @@ def _describe(value) -> str:
 
 
 def _mat5_value(value, where: str):
-    """numpy array, str or dict of a loadmat(simplify_cells=True) value; InputDataError for
-    a class sysid does not read."""
+    """numpy array, str or dict of a loadmat(simplify_cells=True) value; :class:`Unsupported`
+    for a class sysid does not read."""
     import scipy.sparse  # deferred with scipy.io below
 
     if isinstance(value, dict):
@@ -262,9 +283,8 @@ def _mat5_value(value, where: str):
         cls = "char matrix"
     else:
         cls = type(value).__name__
-    raise InputDataError(
-        f"{where}: MATLAB class {cls} is not supported; expected a struct of numeric "
-        "vectors (double, single, integer, logical) and char")
+    return Unsupported(f"{where}: MATLAB class {cls} is not supported; expected numeric "
+                       "vectors (double, single, integer, logical)", cls)
 
 
 def _read_mat5(path: Path) -> list[Group]:
@@ -335,14 +355,14 @@ def _h5_attrs(obj) -> dict:
 
 
 def _h5_value(obj, where: str, matlab: bool):
-    """Array, str or dict (struct/group) of one HDF5 object."""
+    """Array, str, dict (struct/group) or :class:`Unsupported` of one HDF5 object."""
     import h5py  # deferred: only HDF5 files need it
 
     cls = _attr_text(obj.attrs.get("MATLAB_class")) if matlab else None
     if isinstance(obj, h5py.Group):
         if matlab and cls not in (None, "struct"):
-            raise InputDataError(f"{where}: MATLAB class {cls!r} is not supported; expected "
-                                 "struct, numeric vectors and char")
+            return Unsupported(f"{where}: MATLAB class {cls!r} is not supported; expected "
+                               "struct, numeric vectors and char", str(cls))
         return {k: _h5_value(v, f"{where}.{k}", matlab) for k, v in obj.items()}
     if not isinstance(obj, h5py.Dataset):
         raise InputDataError(f"{where}: HDF5 object of type {type(obj).__name__} is not "
@@ -361,9 +381,9 @@ def _h5_value(obj, where: str, matlab: bool):
             codes = np.asarray(obj[()]).T.ravel()
             return "".join(chr(int(c)) for c in codes)
         if cls not in _NUMERIC_CLASSES:
-            raise InputDataError(
-                f"{where}: MATLAB class {cls!r} is not supported; expected a struct of "
-                "numeric vectors (double, single, integer, logical) and char (units)")
+            return Unsupported(
+                f"{where}: MATLAB class {cls!r} is not supported; expected numeric vectors "
+                "(double, single, integer, logical)", str(cls))
         if obj.attrs.get("MATLAB_empty"):
             return np.zeros(0)
         return np.asarray(obj[()]).T  # column-major: (1, n) in the file is n x 1
@@ -372,12 +392,12 @@ def _h5_value(obj, where: str, matlab: bool):
         text = _attr_text(value if not isinstance(value, np.ndarray) else value.ravel()[0]
                           if value.size == 1 else None)
         if text is None:
-            raise InputDataError(f"{where}: string array of shape {obj.shape} is not "
-                                 "supported; expected numeric vectors")
+            return Unsupported(f"{where}: string array of shape {obj.shape} is not "
+                               "supported; expected numeric vectors", "string array")
         return text
     if dtype.kind not in "biuf":
-        raise InputDataError(f"{where}: HDF5 dataset of type {dtype} is not supported; "
-                             "expected numeric vectors")
+        return Unsupported(f"{where}: HDF5 dataset of type {dtype} is not supported; "
+                           "expected numeric vectors", str(dtype))
     return np.asarray(obj[()])
 
 

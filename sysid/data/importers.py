@@ -382,8 +382,11 @@ def _table_from_group(group: Group, mapping: dict, time: str) -> _Table:
     word = ("field" if last.startswith("struct ") else "dataset" if last.startswith("group ")
             else "variable")
     fields = {k: np.asarray(v) for k, v in group.fields.items()}
-    names = list(fields)
+    names = [*fields, *group.unsupported]
     time_col = _time_column(names, mapping, time, group.where, word)
+    for col in [time_col, *(c for k, c in mapping.items() if k != "time")]:
+        if col in group.unsupported:
+            raise InputDataError(group.unsupported[col].message)
     t = fields[time_col]
     if t.ndim > 1 and sum(d > 1 for d in t.shape) <= 1:
         t = t.ravel()
@@ -399,7 +402,7 @@ def _table_from_group(group: Group, mapping: dict, time: str) -> _Table:
             f"mapping {missing}); {word}s in the file: {names}")
     mapping = {k: c for k, c in mapping.items() if k != "time"}
     columns, data, ignored = [time_col], [t], list(group.ignored)
-    for col in names:
+    for col in fields:
         if col == time_col:
             continue
         v = fields[col]
