@@ -259,3 +259,29 @@ def test_unsupported_files_and_classes_are_refused_clearly(tmp_path):
     broken.write_bytes(b"MATLAB 5.0 MAT-file" + bytes(200))
     with pytest.raises(InputDataError, match="broken.mat"):
         importers.read_time_histories(broken)
+
+
+@pytest.mark.parametrize("fmt", ["mat5", "mat73", "hdf5"])
+def test_truncated_or_corrupted_files_raise_only_input_data_error(tmp_path, fmt):
+    """Seeded byte flips and truncations of a valid file: read cleanly or refused with
+    InputDataError, never another exception (h5py and scipy raise many kinds)."""
+    t = np.arange(200) * 0.01
+    ds = xr.Dataset({"q": ("time", np.sin(t), {"units": "deg/s"})},
+                    coords={"time": ("time", t, {"units": "s"})}, attrs={"maneuver": "a"})
+    path = tmp_path / "f"
+    importers.write_time_histories(path, {"a": ds}, format=fmt)
+    raw = path.read_bytes()
+    g = np.random.default_rng(23)
+    for k in range(40):
+        data = bytearray(raw)
+        if k % 2:
+            data = data[:int(g.integers(1, len(data)))]
+        else:
+            for i in g.integers(0, len(data), 8):
+                data[int(i)] = int(g.integers(0, 256))
+        broken = tmp_path / f"broken_{k}"
+        broken.write_bytes(bytes(data))
+        try:
+            importers.read_time_histories(broken)
+        except InputDataError:
+            pass

@@ -407,7 +407,7 @@ def _read_hdf5(path: Path, matlab: bool) -> list[Group]:
     word = "struct" if matlab else "group"
     try:
         f = h5py.File(path, "r")
-    except (OSError, RuntimeError, ValueError) as exc:
+    except Exception as exc:  # h5py raises OSError, KeyError, RuntimeError... for broken files
         raise InputDataError(f"cannot read {'MAT v7.3' if matlab else 'HDF5'} file {path} "
                              f"({type(exc).__name__}: {exc})") from exc
     try:
