@@ -95,8 +95,8 @@ AXES = {"pitch": ("theta", "lon"), "roll": ("phi", "lat"), "yaw": ("psi", "ped")
 RESPONSE_TYPES = ("rate", "attitude")
 #: Mission-task-element classes of the hover and low-speed charts.
 MTES = ("tracking", "other")
-#: Reference frequency (rad/s) of the phase branch and the crossing search when there are no
-#: data to take the coherent band from.
+#: Start (rad/s) of the crossing search and of the band fixing the phase branch when there are
+#: no data to take the coherent band from (the band then runs to the top of the grid).
 OMEGA_REF_DEFAULT = 1.0
 #: Grid of the model responses (rad/s): 2000 log-spaced points over 0.05-100 rad/s.
 MODEL_GRID = (0.05, 100.0, 2000)
@@ -326,10 +326,11 @@ def attitude_responses(data: CampaignData, *, sources: Sequence[str] | None = No
                        sample_hold: float | None = None) -> dict:
     """The attitude responses of every source, per axis.
 
-    Returns ``{axis: {"pair", "origin", "omega_ref", "responses": {source: (omega, H,
-    coherence or None, random_error or None)}, "hold_removed": [source, ...]}}``. ``origin`` says whether the data's attitude
-    was measured or integrated from the rate; ``omega_ref`` is the lowest frequency of the
-    data's coherent band (:data:`OMEGA_REF_DEFAULT` without data). Sources: ``data``,
+    Returns ``{axis: {"pair", "origin", "omega_ref", "omega_band", "responses": {source:
+    (omega, H, coherence or None, random_error or None)}, "hold_removed": [source, ...]}}``.
+    ``origin`` says whether the data's attitude was measured or integrated from the rate;
+    ``omega_band`` is the data's coherent band (rad/s; None without data) and ``omega_ref`` its
+    lowest frequency (:data:`OMEGA_REF_DEFAULT` without data). Sources: ``data``,
     ``linearization_full``, ``linearization`` and the ``/models`` methods, those present (or
     the ones named in ``sources``). ``sample_hold`` (s): the campaign's zero-order hold,
     divided out of the data and of the models fitted to them (:func:`carries_sample_hold`;
@@ -427,7 +428,8 @@ def handling_qualities(data: CampaignData, *, response_type: str | Mapping[str, 
         Restrict to these sources (``data``, ``linearization_full``, ``linearization``,
         model methods).
     coherence_min : float
-        The coherent band whose lowest frequency fixes the phase branch (default 0.6).
+        Coherence of the data's band, which fixes the phase branch and whose lowest
+        frequency starts the crossing search (default 0.6).
     sample_hold : float, "auto" or None
         The campaign's zero-order hold (s), divided out of the data and of the models fitted
         to them so that every source describes the continuous helicopter (module
