@@ -129,6 +129,11 @@ EARLY_R_CHANGE = 0.02
 #: 1e-7 kept the loop going for ten outer iterations); 0.01 is 1/500 of the reduction's
 #: acceptance threshold MAX_COST_INCREASE, so no decision downstream can see it.
 COST_SETTLED = 0.01
+#: Solver and relaxation accelerations (on by default; the benchmark switches them off for
+#: its baseline): the least-squares problem handed to the solver compressed to n_theta + 1
+#: rows (``OutputErrorModel.compressed_residuals``), and Aitken extrapolation of R.
+COMPRESSED = True
+AITKEN = True
 #: Simulated (whitened) values beyond this count as a diverged trial model.
 _HUGE = 1e100
 
@@ -265,6 +270,7 @@ class _Evaluation:
     sens: list = field(default_factory=list)  #: weighted sensitivities (N p, n_theta)
     nuisance: list = field(default_factory=list)  #: weighted nuisance columns (N p, k)
     kept: list = field(default_factory=list)  #: names of the estimated nuisance columns
+    compressed: tuple | None = None  #: (f, J) of the compressed problem (n_theta + 1 rows)
 
 
 class OutputErrorModel:
@@ -420,8 +426,10 @@ class OutputErrorModel:
             Bc[:, np.arange(p), np.arange(p)] = 1.0 / sig
             cols.append(Bc.reshape(N * p, p))
         if self.initial_state:
-            Xo = propagate(Phi, np.zeros((N, n, n)), np.eye(n), block=8)  # Phi^k
-            Yo = np.einsum("oj,kji->koi", Cf, Xo) / sig[None, :, None]
+            if len(disc.get("powers", ())) < N:  # Phi^k, shared by the records of this dt
+                disc["powers"] = propagate(Phi, np.zeros((N, n, n)), np.eye(n))
+            Xo = disc["powers"][:N]
+            Yo = np.matmul(Cf, Xo) / sig[None, :, None]
             cols.append(Yo.reshape(N * p, n))
         bias = np.zeros(p)
         x0 = np.full(n, np.nan)
@@ -509,6 +517,37 @@ class OutputErrorModel:
     def jacobian(self, theta):
         return self.evaluate(theta, jacobian=True).jacobian
 
+    # -- the same problem compressed to n_theta + 1 rows (what the solver is given) ----------
+
+    def compressed_residuals(self, theta):
+        """``[Q^T r, |r - Q Q^T r|]`` with ``J = Q R_J`` (thin): the residual in a basis
+        where the Jacobian is the small triangle ``R_J`` (:meth:`compressed_jacobian`).
+
+        ``|f|``, ``J^T f``, the column norms of the Jacobian and every Gauss-Newton model
+        ``|f + J p|`` are those of the full problem, so the trust-region solver takes the
+        same steps to rounding, without factorising the tall (samples x outputs) Jacobian
+        at every iteration (docs/notes/2026-11-24-time-domain-speed.md).
+        Every evaluation therefore computes the sensitivities too.
+        """
+        self.n_cost += 1
+        return self._compressed(theta)[0]
+
+    def compressed_jacobian(self, theta):
+        return self._compressed(theta)[1]
+
+    def _compressed(self, theta):
+        ev = self.evaluate(theta, jacobian=True)
+        if ev.compressed is None:
+            r, J = ev.residual, ev.jacobian
+            n = J.shape[1]
+            if not np.all(np.isfinite(r)):  # diverged trial model: the solver steps back
+                ev.compressed = (np.full(n + 1, np.inf), np.zeros((n + 1, n)))
+            else:
+                RJ, qr = _triangle(J, r)
+                rest = math.sqrt(max(float(r @ r) - float(qr @ qr), 0.0))
+                ev.compressed = (np.append(qr, rest), np.vstack([RJ, np.zeros((1, n))]))
+        return ev.compressed
+
     def set_sigma(self, sigma) -> None:
         self.sigma = np.asarray(sigma, dtype=float)
         self._cache = None
@@ -567,6 +606,30 @@ def _chol_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
     return scipy.linalg.cho_solve((L, True), b)
 
 
+def _triangle(J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(R_J, Q^T r)`` of the thin factorisation ``J = Q R_J`` (J: m x n, m >> n).
+
+    From the Cholesky factor of the column-scaled Gram matrix ``J^T J`` (one BLAS-3 product
+    instead of a QR of the tall matrix), ``Q^T r = R_J^-T J^T r``; when the
+    scaled Gram matrix is too ill-conditioned for that (reciprocal condition below 1e-10,
+    i.e. J's above 1e5), the QR of J itself.
+    """
+    d = np.sqrt(np.einsum("ij,ij->j", J, J))
+    d = np.where(d > 0, d, 1.0)
+    Js = J / d
+    Gram = Js.T @ Js
+    try:
+        U = scipy.linalg.cholesky(Gram, lower=False)
+        diag = np.diag(U)
+        if np.min(diag) ** 2 < 1e-10 * np.max(diag) ** 2:
+            raise np.linalg.LinAlgError("ill-conditioned")
+    except np.linalg.LinAlgError:
+        Q, R = scipy.linalg.qr(J, mode="economic")
+        return R, Q.T @ r
+    qr = scipy.linalg.solve_triangular(U, Js.T @ r, trans="T", lower=False)
+    return U * d, qr
+
+
 # --------------------------------------------------------------------------------------------
 # Maximum-likelihood relaxation: LM with R fixed, then the R update
 # --------------------------------------------------------------------------------------------
@@ -603,8 +666,10 @@ def _solve(model: OutputErrorModel, theta0, *, tol: float, max_nfev: int | None,
     lo, hi = model.structure.bounds
     span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
     theta0 = np.clip(np.asarray(theta0, float), lo + 1e-9 * span, hi - 1e-9 * span)
-    residuals = model.residuals if deadline is None else deadline.wrap(model.residuals)
-    return scipy.optimize.least_squares(residuals, theta0, jac=model.jacobian,
+    fun, jac = ((model.compressed_residuals, model.compressed_jacobian) if COMPRESSED
+                else (model.residuals, model.jacobian))
+    residuals = fun if deadline is None else deadline.wrap(fun)
+    return scipy.optimize.least_squares(residuals, theta0, jac=jac,
                                         bounds=(lo, hi), method="trf", x_scale="jac",
                                         ftol=tol, xtol=tol, gtol=tol, max_nfev=max_nfev)
 
@@ -628,7 +693,12 @@ def _converge(structure: LinearStructure, records: list[TimeRecord], outputs, th
     # a few Gauss-Newton steps; once R has settled to EARLY_R_CHANGE, every solve converges
     # fully, so the end point is the relaxation's usual fixed point.
     early = True
+    # log R of successive plain fixed-point steps whose solves converged fully; three of them
+    # give an Aitken extrapolation of R (the relaxation converges linearly: each step shrinks
+    # the change of R by a near-constant factor of ~0.6 on the hover study).
+    chain: list = []
     for outer in range(1, max_outer + 1):
+        R_in = R
         model.set_sigma(np.sqrt(R))
         if len(theta):
             limit = max_nfev
@@ -643,10 +713,14 @@ def _converge(structure: LinearStructure, records: list[TimeRecord], outputs, th
         history.append((new_cost, change))
         settled = abs(new_cost - cost) <= max(cost_tol * abs(new_cost), COST_SETTLED)
         done = not early and change < r_tol and settled
+        full_solve = not early
         early = early and change >= EARLY_R_CHANGE
         R, cost = R_new, new_cost
         if done:
             break
+        chain = (chain or [np.log(R_in)]) + [np.log(R_new)] if full_solve else []
+        if len(chain) == 3 and outer < max_outer and AITKEN:
+            R, chain = np.exp(_aitken(*chain)), []
     model.set_sigma(np.sqrt(R))
     ev = model.evaluate(theta, jacobian=True)
     if len(theta):
@@ -658,6 +732,17 @@ def _converge(structure: LinearStructure, records: list[TimeRecord], outputs, th
     counter["outer"] += outer
     return _Converged(structure, theta, R, cost, stats, ev, outer, nfev, history,
                       tuple(outputs))
+
+
+def _aitken(x0: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+    """Aitken's delta-squared extrapolation of three successive fixed-point iterates, per
+    component, where they converge monotonically (ratio of successive changes in (0, 0.9));
+    the last iterate elsewhere."""
+    d1, d2 = x1 - x0, x2 - x1
+    with np.errstate(divide="ignore", invalid="ignore"):
+        q = np.where(d1 != 0, d2 / d1, 0.0)
+    use = (q > 0) & (q < 0.9)
+    return np.where(use, x2 + d2 * np.where(use, q / (1 - q), 0.0), x2)
 
 
 def _joint_statistics(conv: _Converged) -> ParameterStatistics:

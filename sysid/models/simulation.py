@@ -31,6 +31,9 @@ from sysid.models.lti import model_matrices
 
 __all__ = ["discretize", "propagate", "simulate"]
 
+#: From this many right-hand sides on, :func:`propagate` steps the plain recursion.
+_MANY_RHS = 8
+
 
 def discretize(A, B, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """Exact zero-order-hold discretisation: ``(Phi, Gamma)`` with
@@ -49,10 +52,12 @@ def discretize(A, B, dt: float) -> tuple[np.ndarray, np.ndarray]:
 def propagate(Phi, W, x0=None, *, block: int | None = None) -> np.ndarray:
     """States of ``x[k+1] = Phi x[k] + W[k]``, ``x[0] = x0``, for all k at once.
 
-    Exact (no approximation beyond rounding) and vectorised: the record is cut into blocks of
-    L samples; the forced response inside every block is one matrix product with the
-    block-Toeplitz matrix of powers ``Phi^l`` (l < L), and only the N/L block-start states are
-    stepped sequentially.
+    Exact (no approximation beyond rounding). With few right-hand sides (k < 8) it is
+    vectorised: the record is cut into blocks of L samples; the forced response inside every
+    block is one matrix product with the block-Toeplitz matrix of powers ``Phi^l`` (l < L),
+    and only the N/L block-start states are stepped sequentially. With many (sensitivities,
+    k of 9-40) that costs about L times the flops of the plain recursion, which then wins:
+    one (n x n) x (n x k) product per sample (docs/notes/2026-11-24-time-domain-speed.md).
 
     Parameters
     ----------
@@ -61,6 +66,8 @@ def propagate(Phi, W, x0=None, *, block: int | None = None) -> np.ndarray:
         Forcing per step (k independent forcings are propagated together).
     x0 : ndarray (n,) or (n, k), optional
         Initial state(s), default 0.
+    block : int, optional
+        Samples per block of the block-Toeplitz form (k < 8), default ``sqrt(N)`` up to 48.
 
     Returns
     -------
@@ -75,6 +82,13 @@ def propagate(Phi, W, x0=None, *, block: int | None = None) -> np.ndarray:
         np.ones((1, k))
     if N == 0:
         return W[:, :, 0] if squeeze else W
+    if k >= _MANY_RHS:
+        X = np.empty((N, n, k))
+        X[0] = x
+        for j in range(N - 1):
+            np.matmul(Phi, X[j], out=X[j + 1])
+            X[j + 1] += W[j]
+        return X
     L = block or int(min(48, max(1, round(math.sqrt(N)))))
     nb = -(-N // L)
     P = np.empty((L + 1, n, n))

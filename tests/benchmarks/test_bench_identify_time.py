@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from known_systems import add_noise, multistep_records  # noqa: E402
@@ -100,3 +101,76 @@ def test_bench_identify_time_domain(benchmark):
     assert set(freq.structure.free_names) == set(truth_values())
     # Target < 20 s on one core (measured ~10 s with one BLAS thread); reported in
     # extra_info beside the frequency-domain time, not asserted.
+
+
+def _accelerations(on: bool) -> None:
+    """Switch the time-domain fit's accelerations (compressed solver problem, Aitken step of
+    the relaxation, plain-recursion sensitivities) on, or off for the baseline."""
+    import sysid.identify.time_domain as td
+    import sysid.models.simulation as sim
+
+    td.COMPRESSED = td.AITKEN = on
+    sim._MANY_RHS = 8 if on else 10**9
+
+
+def test_compressed_problem_has_the_full_problem_s_geometry():
+    """What the solver sees (n+1 rows) has the full problem's cost, gradient, Gauss-Newton
+    matrix and Jacobian column norms (so the same trust-region steps), at a point off the
+    optimum of the known system."""
+    st = truth_structure(extra_free=SPURIOUS)
+    records = add_noise(multistep_records(noise=0.0, dt=0.01, duration=15.0), 1.0, seed=3)
+    outs = fitted_outputs(records, st)
+    model = OutputErrorModel(st, prepare_records(records, st, outs), outs)
+    theta = st.theta0 * 1.1
+    r, J = model.residuals(theta), model.jacobian(theta)
+    f, Jc = model.compressed_residuals(theta), model.compressed_jacobian(theta)
+    assert f.shape == (len(theta) + 1,) and Jc.shape == (len(theta) + 1, len(theta))
+    assert f @ f == pytest.approx(r @ r, rel=1e-10)
+    assert np.allclose(Jc.T @ f, J.T @ r, rtol=1e-7, atol=1e-9 * np.abs(J.T @ r).max())
+    G = J.T @ J
+    assert np.allclose(Jc.T @ Jc, G, rtol=1e-9, atol=1e-11 * np.abs(G).max())
+
+
+@pytest.mark.fmu
+def test_bench_identify_time_domain_hover(benchmark, request):
+    """Goal: the hover study's time-domain fit with reduction <= 5 s. The fit of the
+    session's hover study (default campaign, seed 20261121) with and without the
+    accelerations in the same run: CPU and wall seconds, their ratio, and the agreement of
+    the two (same removed parameters, estimates within 0.05 Cramer-Rao bounds, bounds within
+    1 %)."""
+    if benchmark.disabled:
+        pytest.skip("the baseline fit takes ~20 s of CPU: only with --benchmark-enable")
+    from sysid.data.campaign import CampaignData
+    from sysid.identify.stages import fit_time_domain
+
+    hover_study = request.getfixturevalue("hover_study")  # after the skip: it runs a study
+    data = CampaignData(hover_study["tree"], source="hover study")
+    out, info = {}, benchmark.extra_info
+
+    def fit():
+        c0, t0 = time.process_time(), time.perf_counter()
+        result = fit_time_domain(data, maneuvers="3211_*", structure="hover_6dof",
+                                 start="linearization")
+        return result, time.perf_counter() - t0, time.process_time() - c0
+
+    try:
+        _accelerations(False)
+        out["baseline"] = fit()
+    finally:
+        _accelerations(True)
+    out["accelerated"] = benchmark.pedantic(fit, rounds=1, iterations=1)
+    for label, (result, wall, cpu) in out.items():
+        info[f"{label}_wall_s"], info[f"{label}_cpu_s"] = round(wall, 2), round(cpu, 2)
+        info[f"{label}_cost_evaluations"] = result.n_cost_evaluations
+        info[f"{label}_jacobian_evaluations"] = result.n_jacobian_evaluations
+        info[f"{label}_outer_iterations"] = result.n_outer_iterations
+    info["speedup_cpu"] = round(out["baseline"][2] / out["accelerated"][2], 2)
+    info["speedup_wall"] = round(out["baseline"][1] / out["accelerated"][1], 2)
+    base, fast = out["baseline"][0], out["accelerated"][0]
+    print(f"\n{info}")
+    assert base.reduction.removed == fast.reduction.removed
+    assert base.structure.free_names == fast.structure.free_names
+    cr = base.statistics.cramer_rao
+    assert np.all(np.abs(fast.theta - base.theta) <= 0.05 * cr), fast.theta - base.theta
+    assert np.allclose(fast.statistics.cramer_rao, cr, rtol=0.01)
+    assert np.allclose(fast.coloured.cramer_rao, base.coloured.cramer_rao, rtol=0.01)
