@@ -2,9 +2,11 @@
 
 Twenty noise/turbulence seeds of the hover campaign through ``sysid.pipeline.batch``: for
 each dominant derivative the seed-to-seed scatter of the estimate against the mean reported
-bound, frequency domain (its Cramer-Rao bound) and time domain (white-noise and corrected
-for coloured residuals). The goal is a ratio between 0.5 and 2 for every dominant derivative
-in both domains (the time domain judged on its corrected bound). The full set runs with
+bound, frequency domain (the CIFER Cramer-Rao bound and the same scaled by the fit
+residuals) and time domain (white-noise and corrected for coloured residuals). The goal is a
+ratio between 0.5 and 2 for every dominant derivative in both domains, judged on the bounds
+the fidelity scoreboard uses (frequency domain: scaled; time domain: corrected); the
+conventions themselves are checked on known systems in tests/test_bound_calibration.py. The full set runs with
 SYSID_EXHAUSTIVE=1 (about 20 studies: an hour or more on 2 cores); the default suite runs the
 reduced form inside tests/test_batch.py (two quick hover seeds), which checks the machinery
 and the stored figures. Measured ratios: docs/notes/*-bound-calibration.md.
@@ -35,6 +37,6 @@ def test_bounds_match_the_scatter_over_twenty_hover_seeds(tmp_path, truth_fmu):
     assert int(cal["calibration_n_seeds"].max()) == N_SEEDS
     table = format_calibration(ds)
     lo, hi = CALIBRATION_GOAL
-    for bound in ("frequency_domain", "time_domain_corrected"):
+    for bound in ("frequency_domain_scaled", "time_domain_corrected"):
         ratio = cal["calibration_ratio"].sel(bound=bound, dominant=list(DOMINANT)).values
         assert np.all((ratio >= lo) & (ratio <= hi)), (bound, table)

@@ -99,9 +99,9 @@ def fidelity_scoreboard(models: Mapping[str, xr.Dataset], truth: xr.Dataset | No
     """Each identified parameter's error against the truth in units of its own bound.
 
     For every parameter free in any model and every model (method): the estimate, its bound
-    ``sigma`` (one standard deviation: the time-domain bound corrected for coloured
-    residuals, ``cramer_rao_corrected``, where the model carries it, else the plain
-    Cramer-Rao bound; the frequency-domain bound in the CIFER convention, docs/methods.md,
+    ``sigma`` (one standard deviation: ``cramer_rao_corrected`` where the model carries it,
+    i.e. the time-domain bound corrected for coloured residuals or the frequency-domain bound
+    scaled by the fit residuals, else the plain Cramer-Rao bound; docs/methods.md,
     "Accuracy"), the truth's quasi-steady value, the error ``value - truth`` and
 
         z = |value - truth| / sigma,     flag = z > threshold (default 3)

@@ -35,7 +35,19 @@ above, i.e. ``H = sum_l (20/n) sum_omega W_gamma [W_g g_dB g_dB^T + W_p g_phase 
 residual-variance rescaling: CIFER's cost weights are chosen so that J behaves like a
 likelihood with unit-variance residuals (one unit of cost ~ 1 dB magnitude error or 7.6 deg
 phase error at unit coherence weight), so the bound is comparable across pairs and data sets
-and the 20 % / 10 % guidelines apply to it unchanged (Tischler & Remple 2012).
+and the 20 % / 10 % guidelines and the model reduction apply to it unchanged (Tischler &
+Remple 2012). It is a standard deviation of the estimate only when the weighted residuals
+are independent with unit variance, i.e. ``J_ave`` near ``2 n_omega`` (40); a closer fit
+scatters proportionally less than the bound says.
+
+Residual-scaled bound (``cramer_rao_corrected``, :func:`residual_scaled_bounds`): the
+sandwich ``H^-1 B H^-1`` of :func:`sysid.identify.statistics.coloured_residual_covariance`
+with each pair's fitted points, in frequency order, as one record of two outputs (weighted
+magnitude and phase residuals): ``B = sum_pairs sum_i sum_j g_i^T R(i - j) g_j`` with ``R``
+the residual correlation over neighbouring points pooled over the pairs, Bartlett-weighted.
+It takes the residual level from the fit and counts neighbouring points (interpolated from
+overlapping windows) as correlated; it is the bound the fidelity scoreboard and the Monte
+Carlo calibration use (docs/methods.md, "Accuracy").
 
 Start values (paper: results depend on them; here they must not): from a start model
 Dataset (e.g. the truth model's quasi-steady linearisation) when given, otherwise from a
@@ -66,7 +78,8 @@ from sysid.core.errors import IdentificationError, InputDataError
 from sysid.core.guidelines import COHERENCE_MIN, FIT_TIME_LIMIT_S
 from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
                                       stepwise_reduction)
-from sysid.identify.statistics import (FitResultParameters, ParameterStatistics,
+from sysid.identify.statistics import (ColouredBounds, FitResultParameters,
+                                      ParameterStatistics, coloured_residual_covariance,
                                       parameter_rows, parameter_statistics, perturbed_start)
 from sysid.models import LinearStructure
 from sysid.core.util import Deadline, Progress
@@ -85,6 +98,7 @@ __all__ = [
     "response_residuals",
     "response_jacobian",
     "equation_error_start",
+    "residual_scaled_bounds",
     "FrequencyFitResult",
     "identify_frequency_domain",
 ]
@@ -610,6 +624,40 @@ def equation_error_start(fr: xr.Dataset, structure: LinearStructure, data: FitDa
     return theta
 
 
+def residual_scaled_bounds(structure: LinearStructure, data: FitData, theta,
+                           information_inverse) -> ColouredBounds | None:
+    """Bounds of the free parameters scaled by the fit's own residuals (module docstring).
+
+    Each pair's points (frequency order) are one record with two outputs, the weighted
+    magnitude and phase residuals ``r`` of :func:`response_residuals`, and the rows of the
+    residual Jacobian ``G`` its sensitivities; ``information_inverse`` is ``(G^T G)^-1`` (the
+    CIFER covariance). Then ``Cov = H^-1 [sum_pairs sum_i sum_j g_i^T K(i - j) g_j] H^-1`` with
+    ``K`` the pooled residual correlation over neighbouring points under a Bartlett window
+    (:func:`sysid.identify.statistics.coloured_residual_covariance`): independent residuals
+    of variance ``s^2`` give ``s^2 H^-1``, the least-squares covariance. None without free
+    parameters.
+
+    References
+    ----------
+    E. A. Morelli and V. Klein, J. Guidance, Control, and Dynamics 20(1), 1997 (the sandwich
+    form, here over frequency points instead of time samples).
+    """
+    theta = np.asarray(theta, float)
+    if theta.size == 0:
+        return None
+    problem = _Problem(structure, data)
+    r = problem.residuals(theta)
+    G = problem.jacobian(theta)
+    n = len(data.omega)
+    sensitivities, residuals = [], []
+    for pair in range(len(data.pairs)):
+        idx = np.flatnonzero(data.pair_index == pair)
+        sensitivities.append(np.stack([G[idx], G[n + idx]], axis=1))    # (points, 2, n_par)
+        residuals.append(np.stack([r[idx], r[n + idx]], axis=1))        # (points, 2)
+    return coloured_residual_covariance(sensitivities=sensitivities, residuals=residuals,
+                                        information_inverse=information_inverse)
+
+
 # --------------------------------------------------------------------------------------------
 # The fit
 # --------------------------------------------------------------------------------------------
@@ -735,6 +783,9 @@ class FrequencyFitResult(FitResultParameters):
     n_cost_evaluations, n_jacobian_evaluations : int
     elapsed : float
         Wall time, s.
+    scaled : ColouredBounds or None
+        Bounds of the free parameters scaled by the residuals (:func:`residual_scaled_bounds`),
+        also in ``model`` as ``cramer_rao_corrected`` and ``cramer_rao_percent_corrected``.
     """
 
     model: xr.Dataset
@@ -753,6 +804,7 @@ class FrequencyFitResult(FitResultParameters):
     elapsed: float
     full_statistics: ParameterStatistics | None = None
     initial_structure: LinearStructure | None = None
+    scaled: ColouredBounds | None = None
 
     @property
     def skipped_pairs(self) -> dict:
@@ -924,18 +976,21 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
     pair_cost = {_pair_name(p): float(c) for p, c in zip(data.pairs, final.pair_cost)}
     pair_cost["J"] = final.J
     pair_cost["J_ave"] = final.J_ave
+    scaled = residual_scaled_bounds(final.structure, data, final.theta,
+                                    final.statistics.covariance)
     elapsed = time.perf_counter() - t_start
     model = _model_dataset(final, data, reduction, start_kind, restart, counter, fr, elapsed,
-                           method)
+                           method, scaled)
     model.attrs["anchored_parameters"] = json.dumps(anchored)
     return FrequencyFitResult(model, final.structure, final.theta, final.statistics, pair_cost,
                               final.J, final.J_ave, data, reduction, start_kind, restart,
                               counter["cost"], counter["jacobian"], elapsed,
-                              full_statistics=full.statistics, initial_structure=structure)
+                              full_statistics=full.statistics, initial_structure=structure,
+                              scaled=scaled)
 
 
 def _model_dataset(final: _Converged, data: FitData, reduction, start_kind, restart, counter,
-                   fr, elapsed, method) -> xr.Dataset:
+                   fr, elapsed, method, scaled: ColouredBounds | None = None) -> xr.Dataset:
     st = final.structure
     attrs = {
         "method": "frequency_domain",
@@ -976,4 +1031,21 @@ def _model_dataset(final: _Converged, data: FitData, reduction, start_kind, rest
                        {"long_name": "lowest fitted frequency", "units": "rad/s"})
     ds["omega_max"] = (("output", "input"), wmax,
                        {"long_name": "highest fitted frequency", "units": "rad/s"})
+    cr_c = np.full(ds.sizes["parameter"], np.nan)
+    cr_cp = np.full_like(cr_c, np.nan)
+    if scaled is not None:
+        pos = {str(p): k for k, p in enumerate(ds.parameter.values)}
+        idx = np.array([pos[name] for name in st.free_names], dtype=int)
+        cr_c[idx] = scaled.cramer_rao
+        cr_cp[idx] = scaled.percent(final.theta)
+        ds.attrs.update(residual_decay_lag_points=int(scaled.decay_lag),
+                        residual_window_lag_points=int(scaled.window_lag))
+    ds.attrs["cramer_rao_corrected_convention"] = (
+        "H^-1 [sum_pairs sum_i sum_j g_i^T R_rr(i-j) g_j] H^-1 over each pair's fitted points "
+        "(H = G^T G), R_rr the weighted residual correlation pooled over the pairs, Bartlett "
+        "lag window: the CIFER bound scaled by the residuals")
+    ds["cramer_rao_corrected"] = ("parameter", cr_c, {
+        "long_name": "Cramer-Rao bound scaled by the fit residuals (one standard deviation)"})
+    ds["cramer_rao_percent_corrected"] = ("parameter", cr_cp, {
+        "long_name": "residual-scaled Cramer-Rao bound in percent of |value|", "units": "%"})
     return ds

@@ -181,7 +181,8 @@ def guideline_mark(cramer_rao_percent: float, insensitivity_percent: float, *,
 def parameter_rows(model, *, absolute_cr: bool = False) -> list[str]:
     """Table lines (header first) of the free parameters of a model Dataset: value,
     optionally the absolute Cramer-Rao bound, CR %, the bound corrected for coloured residuals
-    (``CRc``, ``CRc %``; time-domain models that carry ``cramer_rao_corrected``) and
+    (``CRc``, ``CRc %``; time-domain models that carry ``cramer_rao_corrected``; in the
+    frequency domain the bound scaled by the fit residuals) and
     insensitivity %, then a mark where a parameter breaks the 20 % CR guideline (on the larger
     of its bounds) or the 10 % insensitivity guideline (:func:`guideline_mark`), and an
     ``unidentifiable`` flag; followed by a line saying what the marks mean and one listing
@@ -217,7 +218,10 @@ def parameter_rows(model, *, absolute_cr: bool = False) -> list[str]:
     note = (f"guidelines: CR % <= {CR_MAX_PERCENT:g}"
             + (" (the larger of CR % and CRc %)" if corrected else "")
             + f", I % <= {INSENSITIVITY_MAX_PERCENT:g}; {marked} parameter(s) marked")
-    if corrected:
+    if corrected and "residual_window_lag_points" in model.attrs:
+        note += ("; CRc: scaled by the fit residuals, correlated over "
+                 f"{int(model.attrs['residual_window_lag_points'])} frequency points")
+    elif corrected:
         note += ("; CRc: corrected for coloured residuals (Morelli & Klein 1997), "
                  f"lag window {model.attrs.get('residual_window_lag_s', float('nan')):.2f} s")
     lines.append(note)

@@ -47,7 +47,7 @@ The ``batch.nc`` Dataset (dims ``condition``, ``model`` (the identification meth
 - ``value``, ``cramer_rao`` (absolute), ``cramer_rao_percent`` (condition, model, parameter):
   identified parameters (derivatives and delays), NaN where a method did not estimate it;
   ``cramer_rao_corrected`` (same dims): the bound corrected for coloured residuals (time
-  domain; NaN for the frequency domain);
+  domain) or scaled by the fit residuals (frequency domain, over its fitted points);
 - the Monte Carlo calibration of the bounds (:func:`calibration`; with at least two
   successful seeds at an airspeed), dims ``calibration_kt`` x ``dominant`` (the dominant
   derivatives, :data:`sysid.assess.comparison.DOMINANT`) x ``bound``
@@ -719,11 +719,13 @@ def format_monte_carlo(mc: xr.Dataset) -> str:
     return "\n".join(lines)
 
 
-#: The bounds the Monte Carlo calibration judges: the frequency-domain Cramer-Rao bound, the
-#: time-domain white-noise bound and the time-domain bound corrected for coloured residuals,
-#: as ``name -> (model, batch.nc variable)``.
+#: The bounds the Monte Carlo calibration judges: the frequency-domain Cramer-Rao bound (CIFER
+#: convention) and the same scaled by the fit residuals, the time-domain white-noise bound
+#: and the time-domain bound corrected for coloured residuals, as
+#: ``name -> (model, batch.nc variable)``.
 CALIBRATION_BOUNDS = {
     "frequency_domain": ("frequency_domain", "cramer_rao"),
+    "frequency_domain_scaled": ("frequency_domain", "cramer_rao_corrected"),
     "time_domain_white": ("time_domain", "cramer_rao"),
     "time_domain_corrected": ("time_domain", "cramer_rao_corrected"),
 }
@@ -849,7 +851,8 @@ def plot_calibration(ds: xr.Dataset, path: str | Path) -> Path | None:
         return None
     speeds = ds.calibration_kt.values
     fig, axes = plt.subplots(1, len(speeds), figsize=(7.5 * len(speeds), 3.8), squeeze=False)
-    styles = {"frequency_domain": ("C0", "o", "FD: CR bound"),
+    styles = {"frequency_domain": ("C0", "o", "FD: CR bound (CIFER)"),
+              "frequency_domain_scaled": ("C9", "v", "FD: scaled by the residuals"),
               "time_domain_white": ("C3", "s", "TD: white-noise CR bound"),
               "time_domain_corrected": ("C2", "D", "TD: corrected for coloured residuals")}
     names = [str(n) for n in ds.dominant.values]
@@ -861,7 +864,8 @@ def plot_calibration(ds: xr.Dataset, path: str | Path) -> Path | None:
         for k, bound in enumerate(ds.bound.values):
             color, marker, label = styles.get(str(bound), ("C1", "^", str(bound)))
             r = part.sel(bound=bound).values
-            ax.plot(x + (k - 1) * 0.15, np.where(r > 0, r, np.nan), marker, color=color,
+            offset = (k - (ds.sizes["bound"] - 1) / 2) * 0.15
+            ax.plot(x + offset, np.where(r > 0, r, np.nan), marker, color=color,
                     ms=6, ls="none", label=label)
         ax.set_yscale("log")
         ax.set_xticks(x, names, fontsize=8)
