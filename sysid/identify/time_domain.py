@@ -309,7 +309,9 @@ class OutputErrorModel:
         for j, k in enumerate(st.free_index):
             par = st.parameters[k]
             if par.matrix == "A":
-                self.kind.append(("A", st.states.index(par.row), st.states.index(par.column)))
+                # every entry the parameter sets (several when tied), with its scale
+                self.kind.append(("A", st.states.index(par.row), st.states.index(par.column),
+                                  st.entries_of(int(k))))
             elif par.matrix == "B":
                 self.kind.append(("B", st.states.index(par.row), st.inputs.index(par.column)))
             elif par.matrix == "C":
@@ -359,7 +361,8 @@ class OutputErrorModel:
             for kind in self.kind:
                 if kind[0] == "A":
                     dM = np.zeros_like(M)
-                    dM[kind[1], kind[2]] = dt
+                    for i, c, scale in kind[3]:
+                        dM[i, c] = dt * scale
                     dA.append(scipy.linalg.expm_frechet(M, dM, compute_expm=False)[:n])
             out["dA"] = np.array(dA).reshape(len(dA), n, n + G)
         return out
@@ -503,9 +506,11 @@ class OutputErrorModel:
         Mf = self.structure.M[self.out_idx]  # output equations: C + M (A - K), D + M B
         if np.any(Mf):
             for j, kind in enumerate(self.kind):
-                if kind[0] in "AB" and np.any(Mf[:, kind[1]]):
-                    drive = x[:, kind[2]] if kind[0] == "A" else rec.U[:, kind[2]]
-                    S[:, :, j] += np.outer(drive, Mf[:, kind[1]])
+                entries = kind[3] if kind[0] == "A" else [(kind[1], kind[2], 1.0)]
+                for i, c, scale in entries:
+                    if kind[0] in "AB" and np.any(Mf[:, i]):
+                        drive = x[:, c] if kind[0] == "A" else rec.U[:, c]
+                        S[:, :, j] += scale * np.outer(drive, Mf[:, i])
         return S
 
     # -- interface for least_squares ---------------------------------------------------------

@@ -95,6 +95,11 @@ class Parameter:
         author knows the effect exists, e.g. an on-axis delay standing for the actuators and
         rotor, whose Cramer-Rao bound sits near the guideline only because it trades off
         against a damping derivative.
+    also : tuple of (row, column, scale)
+        Further A entries the same parameter sets, each to ``scale * value`` (A parameters
+        only): a physical constant that appears in several equations is one unknown, e.g.
+        one flapping time constant on the a1 and b1 rows. Tying such entries removes a
+        direction the data cannot separate from the fit.
     """
 
     name: str
@@ -106,6 +111,7 @@ class Parameter:
     lower: float = -math.inf
     upper: float = math.inf
     keep: bool = False
+    also: tuple = ()
 
     def replace(self, **changes) -> "Parameter":
         return dataclasses.replace(self, **changes)
@@ -186,6 +192,7 @@ class LinearStructure:
                 "C": (self.outputs, self.states), "D": (self.outputs, self.inputs),
                 "delay": (self.states, self.inputs)}
         self._entries = {k: ([], [], []) for k in "ABCD"}  # parameter index, row, column
+        self._scales = {k: [] for k in "ABCD"}  # the entry's multiple of the value (ties)
         self._delay_entries: list[tuple[int, np.ndarray, int]] = []  # (param, rows, column)
         seen: dict[tuple, str] = {}
         delayed = np.zeros((len(self.states), len(self.inputs)), dtype=bool)
@@ -215,19 +222,54 @@ class LinearStructure:
                 delayed[r, c] = True
                 self._delay_entries.append((k, r, c))
             else:
-                key = (par.matrix, int(r[0]), c)
-                if key in seen:
-                    raise InputDataError(f"parameters {seen[key]!r} and {par.name!r} both set "
-                                         f"{entry_name(par.matrix, par.row, par.column)}")
-                seen[key] = par.name
-                self._entries[par.matrix][0].append(k)
-                self._entries[par.matrix][1].append(int(r[0]))
-                self._entries[par.matrix][2].append(c)
+                if par.also and par.matrix != "A":
+                    raise InputDataError(f"parameter {par.name!r}: only A parameters may set "
+                                         f"further entries ('also'), this one is in "
+                                         f"{par.matrix}")
+                for i, j, scale in [(int(r[0]), c, 1.0), *self._tied(par)]:
+                    key = (par.matrix, i, j)
+                    if key in seen:
+                        raise InputDataError(
+                            f"parameters {seen[key]!r} and {par.name!r} both set "
+                            f"{entry_name(par.matrix, rows[i], cols[j])}")
+                    seen[key] = par.name
+                    self._entries[par.matrix][0].append(k)
+                    self._entries[par.matrix][1].append(i)
+                    self._entries[par.matrix][2].append(j)
+                    self._scales[par.matrix].append(scale)
         self._entries = {k: tuple(np.asarray(v, dtype=int) for v in t)
                          for k, t in self._entries.items()}
+        self._scales = {k: np.asarray(v, dtype=float) for k, v in self._scales.items()}
         self.free_mask = np.array([p.free for p in self.parameters], dtype=bool)
         self.free_index = np.flatnonzero(self.free_mask)
         self._check_output_delays()
+
+    def _tied(self, par: Parameter) -> list[tuple[int, int, float]]:
+        """``(row index, column index, scale)`` of the further A entries of ``par``."""
+        out = []
+        for item in par.also:
+            try:
+                row, col, scale = item
+                i, j = self.states.index(row), self.states.index(col)
+            except (TypeError, ValueError):
+                raise InputDataError(f"parameter {par.name!r}: further entry {item!r} must be "
+                                     f"(row, column, scale) with row and column among the "
+                                     f"states {list(self.states)}") from None
+            if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale != 0):
+                raise InputDataError(f"parameter {par.name!r}: entry ({row},{col}) has scale "
+                                     f"{scale!r}; expected a finite non-zero number")
+            out.append((i, j, float(scale)))
+        return out
+
+    def entries_of(self, k: int) -> list[tuple[int, int, float]]:
+        """Every entry parameter ``k`` sets: ``(row index, column index, scale)``, the
+        primary entry first (scale 1); empty for a delay."""
+        par = self.parameters[k]
+        if par.matrix == "delay":
+            return []
+        kk, r, c = self._entries[par.matrix]
+        hit = np.flatnonzero(kk == k)
+        return [(int(r[h]), int(c[h]), float(self._scales[par.matrix][h])) for h in hit]
 
     def _check_output_delays(self) -> None:
         """An output equation may not read a delayed B entry (module docstring)."""
@@ -332,7 +374,8 @@ class LinearStructure:
 
         For start values from e.g. the truth model's quasi-steady linearisation: an A/B/C/D
         parameter takes the Dataset's entry minus this structure's fixed part (so a named
-        derivative is ``A_entry - A_kin``), a delay parameter the Dataset's delay of its entry
+        derivative is ``A_entry - A_kin``; a tied parameter the mean over its entries, each
+        divided by its scale), a delay parameter the Dataset's delay of its entry
         (the largest over the column for a whole-input delay), clipped to its bounds. Entries
         the Dataset does not have keep this structure's start values.
         """
@@ -361,9 +404,12 @@ class LinearStructure:
             else:
                 if par.row not in da[rdim].values:
                     continue
-                val = float(da.sel({rdim: par.row, cdim: par.column}))
                 rows, cols = axes[par.matrix]
-                val -= fixed[par.matrix][rows.index(par.row), cols.index(par.column)]
+                # a tied parameter: the mean over its entries (each over its scale)
+                got = [(float(da.sel({rdim: rows[i], cdim: cols[j]})) - fixed[par.matrix][i, j])
+                       / scale for i, j, scale in self.entries_of(k)
+                       if rows[i] in da[rdim].values and cols[j] in da[cdim].values]
+                val = float(np.mean(got))
             if np.isfinite(val):
                 theta[j] = float(np.clip(val, par.lower, par.upper))
         return theta
@@ -389,7 +435,7 @@ class LinearStructure:
                 "D": self.D0.copy()}
         for key, (k, r, c) in self._entries.items():
             if len(k):
-                mats[key][r, c] += vals[k]
+                np.add.at(mats[key], (r, c), vals[k] * self._scales[key])
         tau = np.zeros_like(self.B0)
         for k, r, c in self._delay_entries:
             tau[r, c] = vals[k]
@@ -453,8 +499,9 @@ class LinearStructure:
         dT = np.zeros((len(s), len(self.parameters)), dtype=complex)
         Mo = self.M[out_idx]  # (n_pt, n): output-equation weights of each point's output
         k, r, c = self._entries["A"]
-        if len(k):
-            dT[:, k] = (CR[:, r] + Mo[:, r]) * X[:, c]
+        if len(k):  # a tied parameter sums over its entries
+            np.add.at(dT, (slice(None), k), (CR[:, r] + Mo[:, r]) * X[:, c]
+                      * self._scales["A"])
         k, r, c = self._entries["B"]
         if len(k):
             dT[:, k] = (CR[:, r] * E[:, r, c] + Mo[:, r]) * (in_idx[:, None] == c[None, :])
@@ -544,6 +591,11 @@ class LinearStructure:
             coords={"state": st, "state_dot": st, "input": inp, "output": out,
                     "parameter": names, "parameter_j": names},
         )
+        if any(p.also for p in self.parameters):
+            ds["also"] = (("parameter",), np.array([_also_text(p.also)
+                                                    for p in self.parameters], dtype=object),
+                          {"long_name": "further A entries a tied parameter sets, "
+                                        "'row,column*scale' separated by ';'"})
         if self.has_output_equations:
             ds["output_equation"] = (("output", "state_dot"), self.M.copy(), {
                 "long_name": "weights of the state-derivative rows in each output: "
@@ -558,6 +610,19 @@ class LinearStructure:
         base_attrs.update(dict(attrs or {}))
         ds.attrs.update(base_attrs)
         return ds
+
+
+def _also_text(also) -> str:
+    return ";".join(f"{r},{c}*{float(s):g}" for r, c, s in also)
+
+
+def _also_parse(text: str) -> tuple:
+    out = []
+    for part in filter(None, str(text).split(";")):
+        entry, scale = part.rsplit("*", 1)
+        row, col = entry.split(",")
+        out.append((row, col, float(scale)))
+    return tuple(out)
 
 
 def _matrix(value, shape, label, name) -> np.ndarray:
@@ -672,7 +737,8 @@ def model_from_dataset(model: xr.Dataset) -> tuple[LinearStructure, np.ndarray]:
                 str(nm), matrix, str(model["row"].values[k]), str(model["column"].values[k]),
                 float(model["value"].values[k]), bool(model["free"].values[k]),
                 float(lower[k]) if lower is not None else -math.inf,
-                float(upper[k]) if upper is not None else math.inf))
+                float(upper[k]) if upper is not None else math.inf,
+                also=_also_parse(model["also"].values[k]) if "also" in model else ()))
     M = K = None
     if "output_equation" in model:
         M = model["output_equation"].sel(output=outputs, state_dot=states).values.astype(float)
@@ -685,7 +751,7 @@ def model_from_dataset(model: xr.Dataset) -> tuple[LinearStructure, np.ndarray]:
         base["D"] -= M @ B
     for key, (k, r, c) in probe._entries.items():
         if len(k):
-            base[key][r, c] -= vals[k]
+            np.subtract.at(base[key], (r, c), vals[k] * probe._scales[key])
     if np.any((tau != 0) & ~_delay_covered(probe)):
         raise InputDataError("model Dataset has delays on B entries that no delay parameter "
                              "covers; cannot rebuild its structure")

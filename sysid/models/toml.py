@@ -75,6 +75,8 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
         X_u = { value = 0.0, free = false }
         "q,u" = 0.02                       # shorthand: free, start 0.02
         L_p = { value = -10, lower = -50, upper = 0 }
+        "a1,a1" = { value = -14, also = ["b1,b1"] }        # one parameter on two entries
+        "a1,b1" = { value = 1, also = [["b1,a1", -1.0]] }  # ... the second one negated
 
         [B]
         M_lon = { value = 1.0 }
@@ -96,7 +98,9 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
 
     A/B entries on the 6-DoF force rows get derivative names (``"q,u"`` -> ``M_u``); other
     entries are named ``A[row,column]``. Entries not listed are fixed at the fixed part
-    (kinematics for A, zero otherwise).
+    (kinematics for A, zero otherwise). ``also`` (A only) ties further entries to the same
+    parameter, each ``"row,column"`` (same value) or ``["row,column", scale]`` (``scale``
+    times the value): one physical constant in several equations is one unknown.
 
     Outputs that are not states need an output equation: ``ax ay az`` have a built-in one,
     the body-axis specific force at the accelerometer (ft/s^2, gravity excluded): the
@@ -190,14 +194,16 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
             nm, row, col = _parse_entry_key(key, matrix, states)
             item = {"value": item} if not isinstance(item, Mapping) else dict(item)
             where = f"structure {source}: [{matrix}] {key}"
-            _check_fields(item, {"value", "free", "lower", "upper", "name", "keep"}, where)
+            _check_fields(item, {"value", "free", "lower", "upper", "name", "keep", "also"},
+                          where)
             params.append(Parameter(_text(item.get("name", nm), f"{where}: name"), matrix,
                                     row, col,
                                     _number(item.get("value", 0.0), f"{where}: value"),
                                     _flag(item.get("free", True), f"{where}: free"),
                                     _number(item.get("lower", -math.inf), f"{where}: lower"),
                                     _number(item.get("upper", math.inf), f"{where}: upper"),
-                                    _flag(item.get("keep", False), f"{where}: keep")))
+                                    _flag(item.get("keep", False), f"{where}: keep"),
+                                    _also(item.get("also", []), matrix, f"{where}: also")))
     for nm, item in dict(spec.get("delays", {})).items():
         item = dict(item) if isinstance(item, Mapping) else {"entry": item}
         if "entry" not in item:
@@ -292,6 +298,25 @@ def _output_equations(spec: Mapping, states, inputs, outputs, source: str):
                                  f"{sorted(ACCELEROMETER_ROWS)}; others go in "
                                  f"[output_equations])")
     return C0, D0, M
+
+
+def _also(value, matrix: str, where: str) -> tuple:
+    """``also = ["b1,b1", ["b1,a1", -1.0]]`` -> ``(("b1", "b1", 1.0), ("b1", "a1", -1.0))``."""
+    expected = ('a list of "row,column" or ["row,column", scale] (A entries the parameter '
+                'also sets)')
+    if not isinstance(value, list):
+        raise InputDataError(f"{where} = {value!r}: expected {expected}")
+    if value and matrix != "A":
+        raise InputDataError(f"{where}: only [A] parameters may set further entries")
+    out = []
+    for item in value:
+        entry, scale = (item, 1.0) if isinstance(item, str) else (
+            item if isinstance(item, list) and len(item) == 2 else (None, None))
+        if not isinstance(entry, str) or entry.count(",") != 1:
+            raise InputDataError(f"{where}: {item!r}: expected {expected}")
+        row, col = (x.strip() for x in entry.split(","))
+        out.append((row, col, _number(scale, f"{where}: {entry} scale")))
+    return tuple(out)
 
 
 def _number(value, where: str, expected: str = "a number") -> float:

@@ -300,17 +300,22 @@ def truth_for_structure(full: xr.Dataset, structure: LinearStructure) -> xr.Data
     A, B, C, D = (red[k].values.copy() for k in ("A", "B", "C", "D"))
     measured = np.any(structure.C0 != 0, axis=0) | np.any(structure.M != 0, axis=0)
     z = [i for i, s in enumerate(states) if not measured[i] and s not in STATES_6DOF]
+    # states with no fixed entry on a measured column (e.g. actuators with the truth's names
+    # and known gearing) keep the truth's scale
+    z = [i for i in z if np.any((structure.A0[i] != 0) & measured)
+         or any(p.matrix == "A" and not p.free and p.row == states[i]
+                and measured[states.index(p.column)] for p in structure.parameters)]
     T = np.eye(len(z))
     if z:
         free = np.zeros_like(structure.A0, dtype=bool)
         fixedA = structure.A0.copy()
         vals = structure.values()
-        for k, (r, c) in ((k, (states.index(p.row), states.index(p.column)))
-                          for k, p in enumerate(structure.parameters) if p.matrix == "A"):
-            if structure.parameters[k].free:
-                free[r, c] = True
-            else:
-                fixedA[r, c] += vals[k]
+        for k in (k for k, p in enumerate(structure.parameters) if p.matrix == "A"):
+            for r, c, scale in structure.entries_of(k):  # every entry of a tied parameter
+                if structure.parameters[k].free:
+                    free[r, c] = True
+                else:
+                    fixedA[r, c] += scale * vals[k]
         Q = [j for j in range(len(states)) if j not in z and not free[z, j].any()
              and np.any(fixedA[z, j] != 0)]
         if len(Q) >= len(z):
