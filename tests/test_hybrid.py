@@ -18,6 +18,10 @@ from sysid.identify.stages import fit_frequency_domain, fit_time_domain
 from sysid.models import load_structure, residualize_model
 from sysid.pipeline.study import StudySettings
 from sysid.truth.linearize import truth_for_structure
+from sysid.core.errors import InputDataError
+from sysid.identify.frequency_domain import identify_frequency_domain
+from sysid.identify.time_domain import OutputErrorModel, prepare_records
+from sysid.models import frequency_response, model_from_dataset, simulate, structure_from_dict
 
 pytestmark = pytest.mark.fmu
 
@@ -65,7 +69,11 @@ def test_hybrid_truth_reduces_to_the_quasi_steady_linearisation(hover_lin, hover
     # parameters read back: value = entry minus fixed part
     values = dict(zip(tr.parameter.values, tr.value.values))
     assert values["L_b1"] == pytest.approx(A.loc["p", "b1"], rel=1e-12)
-    assert values["A[a1,a1]"] == pytest.approx(A.loc["a1", "a1"], rel=1e-12)
+    # one flapping time constant (A[a1,a1] also sets A[b1,b1]): the truth's two entries
+    # agree (the premise of the tie) and the parameter is their mean
+    assert A.loc["a1", "a1"] == pytest.approx(A.loc["b1", "b1"], rel=1e-3)
+    assert values["A[a1,a1]"] == pytest.approx((A.loc["a1", "a1"] + A.loc["b1", "b1"]) / 2,
+                                               rel=1e-12)
     # flapping time constant near Padfield's 16/(gamma Omega) estimate for this rotor
     tau_f = -1.0 / values["A[a1,a1]"]
     assert 0.05 < tau_f < 0.09, tau_f
@@ -83,6 +91,114 @@ def test_hybrid_truth_reduces_to_the_quasi_steady_linearisation(hover_lin, hover
     ev_f = np.sort(np.abs(hover_lin.eigenvalues_full))
     for e in ev_h[ev_h > 0.1]:
         assert np.min(np.abs(ev_f - e)) < 0.03 * e, e
+
+
+# --- One parameter on several entries (the shared flapping time constant) -------------------
+
+TIED = {"states": ["u", "w", "q", "theta", "a1", "b1"], "inputs": ["lon", "col"],
+        "outputs": ["u", "w", "q", "theta"],
+        "A": {"X_u": -0.02, "Z_w": -0.3, "M_a1": 40.0, "theta,q": {"value": 1.0, "free": False},
+              "a1,q": {"value": -1.0, "free": False},
+              "a1,a1": {"value": -14.0, "also": ["b1,b1"]},
+              "a1,b1": {"value": 1.0, "also": [["b1,a1", -1.0]]},
+              "u,theta": {"value": -32.17, "free": False}, "q,u": 0.1},
+        "B": {"a1,lon": 2.0, "Z_col": -0.7, "b1,col": 0.3}}
+
+
+def _tied_and_untied():
+    tied = structure_from_dict(TIED, source="tied")
+    spec = {**TIED, "A": {**TIED["A"], "a1,a1": -14.0, "b1,b1": -14.0, "a1,b1": 1.0}}
+    spec["A"]["b1,a1"] = -1.0
+    return tied, structure_from_dict(spec, source="untied")
+
+
+def test_a_tied_parameter_sets_every_entry_with_its_scale():
+    """``also`` puts one value on several A entries; a tie onto an entry another parameter
+    sets is refused; the model Dataset keeps the tie (round trip)."""
+    with pytest.raises(InputDataError, match="both set"):
+        structure_from_dict({**TIED, "A": {**TIED["A"], "b1,a1": 0.5}}, source="clash")
+    tied, untied = _tied_and_untied()
+    assert "A[b1,b1]" not in tied.parameter_names and "A[b1,a1]" not in tied.parameter_names
+    theta = tied.theta0 * 1.3
+    A = tied.matrices(theta)[0]
+    st = list(tied.states)
+    a1, b1 = st.index("a1"), st.index("b1")
+    k = list(tied.free_names)
+    assert A[a1, a1] == A[b1, b1] == theta[k.index("A[a1,a1]")]
+    assert A[a1, b1] == -A[b1, a1] == theta[k.index("A[a1,b1]")]
+    back, values = model_from_dataset(tied.to_dataset(theta))
+    np.testing.assert_array_equal(back.matrices(values)[0], A)
+    assert back.parameter("A[a1,b1]").also == (("b1", "a1", -1.0),)
+    # start values from a model whose two entries differ: their mean (over the scale)
+    other = tied.to_dataset(theta)
+    other["A"].values[b1, b1] += 2.0
+    got = dict(zip(tied.free_names, tied.values_from_model(other)))
+    assert got["A[a1,a1]"] == pytest.approx(theta[k.index("A[a1,a1]")] + 1.0)
+
+
+def test_tied_sensitivities_are_the_sums_of_the_untied_ones():
+    """Frequency domain: dT/dtheta against central differences. Time domain: the tied
+    parameter's output sensitivity equals the untied entries' sensitivities combined with
+    their scales (each computed by the unmodified per-entry path)."""
+    tied, untied = _tied_and_untied()
+    s = 1j * np.array([0.5, 3.0, 12.0, 20.0])
+    oi, ii = np.array([0, 1, 2, 3]), np.array([0, 1, 0, 1])
+    theta = tied.theta0 * 1.1
+    _, dT = tied.pair_response(theta, s, oi, ii, jacobian=True)
+    for j in range(theta.size):
+        h = 1e-6 * max(1.0, abs(theta[j]))
+        e = np.zeros_like(theta)
+        e[j] = h
+        num = (tied.pair_response(theta + e, s, oi, ii)
+               - tied.pair_response(theta - e, s, oi, ii)) / (2 * h)
+        np.testing.assert_allclose(dT[:, j], num, rtol=1e-6, atol=1e-9 * np.abs(dT).max())
+    t = np.arange(0.0, 4.0, 0.02)
+    rec = xr.Dataset({"lon": ("time", np.where((t > 0.5) & (t < 1.5), 1.0, 0.0)),
+                      "col": ("time", np.where((t > 2.0) & (t < 2.6), -1.0, 0.0))},
+                     coords={"time": t})
+    y = simulate(tied.to_dataset(), rec)
+    for o in tied.outputs:
+        rec[o] = y[o] + 0.01 * np.sin(7.0 * t)
+    rec.attrs.update({"maneuver": "steps", **{f"trim_{c}": 0.0 for c in rec.data_vars}})
+    outs = tuple(tied.outputs)
+    J = {}
+    for name, st in (("tied", tied), ("untied", untied)):
+        model = OutputErrorModel(st, prepare_records([rec], st, outs), outs)
+        J[name] = dict(zip(st.free_names, model.jacobian(st.theta0).T))
+    np.testing.assert_allclose(J["tied"]["A[a1,a1]"], J["untied"]["A[a1,a1]"]
+                               + J["untied"]["A[b1,b1]"], rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(J["tied"]["A[a1,b1]"], J["untied"]["A[a1,b1]"]
+                               - J["untied"]["A[b1,a1]"], rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(J["tied"]["M_a1"], J["untied"]["M_a1"], rtol=1e-12)
+
+
+# --- Reduced hybrid identification against the truth linearisation (default run) -----------
+
+def _hybrid_truth_of(lin_full, trim):
+    st = load_structure(HYBRID, trim=trim)
+    return st, truth_for_structure(lin_full, st)
+
+
+def test_frequency_domain_hybrid_on_the_full_linear_response(hover_lin, hover_trim):
+    """The hover_hybrid structure fitted (from its file's start values) to the exact
+    0.3-20 rad/s response of the truth's full 17-state linearisation (inflow, actuators,
+    flapping): J_ave <= 50 and the issue's derivatives within 15 %, the shared flapping
+    time constant within 20 % of the truth reduced to the structure. What is left is the
+    structure's own error (actuators as delays, quasi-steady inflow), no noise."""
+    st, truth = _hybrid_truth_of(hover_lin.full, hover_trim.channel_values())
+    omega = np.logspace(np.log10(0.3), np.log10(20.0), 120)
+    H = frequency_response(hover_lin.full, omega).sel(output=list(st.outputs),
+                                                       input=list(st.inputs))
+    g2 = xr.full_like(H.real, 0.95)
+    fr = xr.Dataset({"H": H, "coherence": g2, "partial_coherence": g2,
+                     "random_error": xr.full_like(H.real, 0.02)})
+    fit = identify_frequency_domain(fr, st, frequency_range=(0.3, 20.0), reduce=False)
+    assert fit.J_ave <= J_AVE_MAX
+    got, want = _figures(fit.model), _figures(truth)
+    for name in ("L_p", "M_q", "L_lat", "M_lon", "Z_w", "Z_col", "N_r", "N_ped"):
+        assert _error(got[name], want[name]) <= DERIVATIVE_TOL, (name, got[name], want[name])
+    assert got["tau_a1"] == got["tau_b1"]  # one parameter
+    assert _error(got["tau_a1"], want["tau_a1"]) <= TAU_F_TOL, (got["tau_a1"], want["tau_a1"])
 
 
 # --- The hybrid chain on the hover study's campaign (issue 22, "Must show") ------------------
@@ -152,6 +268,8 @@ def _error(value, truth):
     return abs(value / truth - 1.0)
 
 
+@pytest.mark.slow  # needs the session's hover study (minutes); the default run has the
+# reduced form above (test_frequency_domain_hybrid_on_the_full_linear_response)
 def test_frequency_domain_hybrid_meets_the_targets_it_meets(hybrid_fd, hybrid_truth):
     """Frequency-domain hover_hybrid over 0.3-20 rad/s: J_ave <= 50, six of the eight
     derivatives within 15 % and both flapping time constants within 20 % of the truth."""
