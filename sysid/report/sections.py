@@ -733,14 +733,13 @@ def section_guidelines(ctx: Context, pair_results: dict[str, PairResult], time: 
                                        else r.coherence_min >= g["coherence"], pair=pair)])
     data_table = (html_table(["pair", "fit range [rad/s]", "min γ²", f"% ≥ {g['coherence']:g}",
                               f"min γ² ≥ {g['coherence']:g}"], data_rows, "numeric", raw=True,
-                             table_id="table-coherence")
-                  if data_rows else not_available("no composite frequency responses"))
+                             table_id="table-coherence") if data_rows else "")
     return ("<p>Thresholds from the rotorcraft system-identification guidelines "
             "(Tischler &amp; Remple 2012; sysid's docs/methods.md, Guidelines). "
             "n/a: the quantity is not in the campaign.</p>"
-            + (model_table if columns else not_available("no models"))
-            + f"<h3>Composite coherence over the fitted range (γ² ≥ {g['coherence']:g})</h3>"
-            + data_table)
+            + (model_table if columns else "")
+            + (f"<h3>Composite coherence over the fitted range (γ² ≥ {g['coherence']:g})</h3>"
+               + data_table if data_rows else ""))
 
 
 # -- Model reduction -------------------------------------------------------------------------
