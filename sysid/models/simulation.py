@@ -32,7 +32,7 @@ from sysid.models.lti import model_matrices
 __all__ = ["discretize", "propagate", "simulate"]
 
 #: From this many right-hand sides on, :func:`propagate` steps the plain recursion.
-_MANY_RHS = 8
+_MANY_RHS = 16
 
 
 def discretize(A, B, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -52,12 +52,15 @@ def discretize(A, B, dt: float) -> tuple[np.ndarray, np.ndarray]:
 def propagate(Phi, W, x0=None, *, block: int | None = None) -> np.ndarray:
     """States of ``x[k+1] = Phi x[k] + W[k]``, ``x[0] = x0``, for all k at once.
 
-    Exact (no approximation beyond rounding). With few right-hand sides (k < 8) it is
-    vectorised: the record is cut into blocks of L samples; the forced response inside every
-    block is one matrix product with the block-Toeplitz matrix of powers ``Phi^l`` (l < L),
-    and only the N/L block-start states are stepped sequentially. With many (sensitivities,
-    k of 9-40) that costs about L times the flops of the plain recursion, which then wins:
-    one (n x n) x (n x k) product per sample (docs/notes/2026-11-24-time-domain-speed.md).
+    Exact (the plain recursion, regrouped; no approximation beyond rounding). With few
+    right-hand sides (k < 16) the record is cut into blocks of L samples and the Python loop
+    shrinks from N steps to about 3 sqrt(N): the forcing of every block is accumulated,
+    ``F_b = sum_i Phi^(L-1-i) W[bL+i]``, for all blocks at once (L matrix products); the
+    block-start states ``x[(b+1)L] = Phi^L x[bL] + F_b`` are stepped; the states inside the
+    blocks follow, again for all blocks at once. The flops are twice the recursion's (the
+    earlier block-Toeplitz form cost about L/2 times them). With many right-hand sides
+    (sensitivities) the copies into block order cost more than the loop saves, and the
+    plain recursion runs (docs/notes/2026-11-24-time-domain-speed.md).
 
     Parameters
     ----------
@@ -67,7 +70,7 @@ def propagate(Phi, W, x0=None, *, block: int | None = None) -> np.ndarray:
     x0 : ndarray (n,) or (n, k), optional
         Initial state(s), default 0.
     block : int, optional
-        Samples per block of the block-Toeplitz form (k < 8), default ``sqrt(N)`` up to 48.
+        Samples per block (k < 16), default ``round(sqrt(N))``.
 
     Returns
     -------
@@ -89,29 +92,27 @@ def propagate(Phi, W, x0=None, *, block: int | None = None) -> np.ndarray:
             np.matmul(Phi, X[j], out=X[j + 1])
             X[j + 1] += W[j]
         return X
-    L = block or int(min(48, max(1, round(math.sqrt(N)))))
+    L = int(block or max(1, round(math.sqrt(N))))
     nb = -(-N // L)
-    P = np.empty((L + 1, n, n))
-    P[0] = np.eye(n)
-    for j in range(1, L + 1):
-        P[j] = Phi @ P[j - 1]
-    # Toeplitz T[l, i] = Phi^(l-1-i) for i < l (l = 0..L): forced response after l steps.
-    T = np.zeros((L + 1, L, n, n))
-    for l_ in range(1, L + 1):
-        T[l_, :l_] = P[l_ - 1::-1][:l_]
-    Tm = T.transpose(0, 2, 1, 3).reshape((L + 1) * n, L * n)
     Wp = np.zeros((nb * L, n, k))
     Wp[:N] = W
-    # (nb, L*n, k) -> forced (nb, (L+1)*n, k)
-    F = np.einsum("ij,bjk->bik", Tm, Wp.reshape(nb, L * n, k), optimize=True)
-    F = F.reshape(nb, L + 1, n, k)
-    starts = np.empty((nb, n, k))
-    PL = P[L]
+    # T[i] = the i-th forcing of every block, as one (n, nb k) matrix
+    T = np.ascontiguousarray(Wp.reshape(nb, L, n, k).transpose(1, 2, 0, 3))
+    T = T.reshape(L, n, nb * k)
+    F = T[0].copy()
+    for i in range(1, L):
+        F = Phi @ F + T[i]
+    F = F.reshape(n, nb, k)
+    PL = np.linalg.matrix_power(Phi, L)
+    X = np.empty((L, n, nb * k))
+    starts = X[0].reshape(n, nb, k)
     for b in range(nb):
-        starts[b] = x
-        x = PL @ x + F[b, L]
-    X = np.einsum("lij,bjk->blik", P[:L], starts) + F[:, :L]
-    X = X.reshape(nb * L, n, k)[:N]
+        starts[:, b] = x
+        x = PL @ x + F[:, b]
+    for i in range(1, L):
+        np.matmul(Phi, X[i - 1], out=X[i])
+        X[i] += T[i - 1]
+    X = X.reshape(L, n, nb, k).transpose(2, 0, 1, 3).reshape(nb * L, n, k)[:N]
     return X[:, :, 0] if squeeze else X
 
 
