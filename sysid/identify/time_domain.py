@@ -27,7 +27,12 @@ covariance ``R = diag(sigma_j^2)``,
 relaxation: (1) with R fixed, a Levenberg-Marquardt-type solve of the weighted least-squares
 problem (:func:`scipy.optimize.least_squares`, ``"trf"``, which honours the 0..0.3 s bounds
 of free delays); (2) ``R_jj = mean_k e_j[k]^2`` (its ML estimate); repeated until the relative
-changes of every ``R_jj`` and of ``L`` are below ``r_tol``/``cost_tol``.
+changes of every ``R_jj`` and of ``L`` are below ``r_tol``/``cost_tol``. The solver is given
+the weighted problem compressed to ``n_theta + 1`` rows (``J = Q R_J``; residual
+``[Q^T r, |r - Q Q^T r|]``, Jacobian ``[R_J; 0]``): the same cost, gradient and Gauss-Newton
+models, so the same steps, without factorising the tall Jacobian at every iteration. Once
+the solves converge fully, every third R is extrapolated by Aitken's delta-squared step (the
+fixed-point iteration of R converges linearly); the stopping rule is unchanged.
 
 Nuisance parameters (docs/methods.md, "Time-domain fit and verification"): a bias per output and an initial state per record. Both
 enter the outputs *linearly* for a given ``theta`` (``y = y_u(theta) + O(theta) x0 + b`` with
