@@ -6,7 +6,7 @@ whole chain on a known linear system of its own (tests/trust_system.py, the test
 issue 21) measured the way the example is (p q r phi theta psi ax ay az, no u v w), written as
 CSV files: the identified derivatives against the system's truth, the report in Chromium.
 
-Slow (``SYSID_EXHAUSTIVE=1 pytest -m slow``; 3-5 min on the shared machine; the known-system
+Slow (``SYSID_EXHAUSTIVE=1 pytest -m slow``; 2-5 min on the shared machine; the known-system
 chain is its reduced form in the default run): the README's worked example, the
 truth helicopter's hover campaign written as jittered MAT v7.3 files without u v w and run
 through ``sysid run --data ... --resample auto``, against the truth FMU's linearisation for
@@ -33,13 +33,15 @@ from test_measurement_equations import accelerometer_spec
 
 from sysid.cli import main
 from sysid.core.errors import InputDataError
-from sysid.core.units import CHANNELS, CONTROLS
+from sysid.core.units import CHANNELS
 from sysid.data.campaign import CampaignData
 from sysid.data.importers import write_csv
 from sysid.flight_test.example import jittered_record
 from sysid.identify.frequency_domain import with_derived_states
 from sysid.models import load_structure, structure_from_dict
 from sysid.report.read import pair_costs
+from sysid.truth import linearize, trim
+from sysid.truth.linearize import truth_for_structure
 from sysid.pipeline.flight_data import (measured_outputs, measured_pairs, measured_structure,
                                         read_flight_data, run_flight_data, structure_toml)
 
@@ -183,8 +185,7 @@ def known_system_chain(seed: int = 3) -> Path:
     """Output folder of ``run_flight_data`` on the known system's files (once per process)."""
     root = Path(tempfile.mkdtemp(prefix="sysid-flight-"))
     files = _known_system_files(root, seed)
-    run_flight_data(files, root / "out", structure=trust_system.STRUCTURE_FILE, quiet=True,
-                    log=open(root / "log.txt", "w"))
+    run_flight_data(files, root / "out", structure=trust_system.STRUCTURE_FILE, quiet=True)
     return root / "out"
 
 
@@ -274,14 +275,10 @@ EXAMPLE_BOUNDS = {
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not EXHAUSTIVE, reason="the README example flies the hover campaign (3-5 "
+@pytest.mark.skipif(not EXHAUSTIVE, reason="the README example flies the hover campaign (2-5 "
                     "min); its reduced form is the known-system chain above; "
                     "SYSID_EXHAUSTIVE=1 runs it")
 def test_readme_example_identifies_the_truth(tmp_path, chromium, capsys):  # noqa: F811
-    from sysid.models import load_structure as _load
-    from sysid.truth import linearize, trim
-    from sysid.truth.linearize import truth_for_structure
-
     assert main(["example-data", "-o", str(tmp_path / "flight"), "-q"]) == 0
     files = sorted(str(p) for p in (tmp_path / "flight").glob("*.mat"))
     assert len(files) == 16
@@ -292,7 +289,7 @@ def test_readme_example_identifies_the_truth(tmp_path, chromium, capsys):  # noq
     assert total == len(list((out / "figures").glob("*.png"))) and loaded == total > 20
     data = CampaignData.read(out / "campaign.nc")
     assert not data.has("linearization")
-    st = _load(out / "structure.toml", trim=data.trim())
+    st = load_structure(out / "structure.toml", trim=data.trim())
     truth = truth_for_structure(linearize(trim(0.0)).full, st)
     true = dict(zip(map(str, truth.parameter.values), truth.value.values))
     for method, bounds in EXAMPLE_BOUNDS.items():
