@@ -6,10 +6,11 @@ bound, frequency domain (the CIFER Cramer-Rao bound and the same scaled by the f
 residuals) and time domain (white-noise and corrected for coloured residuals). The goal is a
 ratio between 0.5 and 2 for every dominant derivative in both domains, judged on the bounds
 the fidelity scoreboard uses (frequency domain: scaled; time domain: corrected); the
-conventions themselves are checked on known systems in tests/test_bound_calibration.py. The full set runs with
-SYSID_EXHAUSTIVE=1 (about 20 studies: an hour or more on 2 cores); the default suite runs the
-reduced form inside tests/test_batch.py (two quick hover seeds), which checks the machinery
-and the stored figures. Measured ratios: docs/notes/*-bound-calibration.md.
+conventions themselves are checked on known systems in tests/test_bound_calibration.py.
+The full set runs with SYSID_EXHAUSTIVE=1 (about 20 studies: an hour or more on 2 cores);
+the default suite runs the reduced form inside tests/test_batch.py (two quick hover
+seeds), which checks the machinery and the stored figures. Measured ratios:
+docs/notes/*-bound-calibration.md, docs/notes/*-bound-convention-monte-carlo.md.
 """
 
 import os

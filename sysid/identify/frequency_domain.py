@@ -49,6 +49,10 @@ It takes the residual level from the fit and counts neighbouring points (interpo
 overlapping windows) as correlated; it is the bound the fidelity scoreboard and the Monte
 Carlo calibration use (docs/methods.md, "Accuracy").
 
+Noise bound (``cramer_rao_noise``, :func:`random_error_bounds`): the same sandwich with the
+residual covariance taken from the spectral random error of the measured response instead of
+the residuals, so it carries the measurement noise only, not the model's misfit.
+
 Start values (paper: results depend on them; here they must not): from a start model
 Dataset (e.g. the truth model's quasi-steady linearisation) when given, otherwise from a
 frequency-domain equation-error fit (:func:`equation_error_start`).
@@ -99,6 +103,7 @@ __all__ = [
     "response_jacobian",
     "equation_error_start",
     "residual_scaled_bounds",
+    "random_error_bounds",
     "FrequencyFitResult",
     "identify_frequency_domain",
 ]
@@ -658,6 +663,32 @@ def residual_scaled_bounds(structure: LinearStructure, data: FitData, theta,
                                         information_inverse=information_inverse)
 
 
+def random_error_bounds(structure: LinearStructure, data: FitData, theta,
+                        information_inverse) -> np.ndarray:
+    """Bounds of the free parameters from the spectral random error of the fitted points
+    (shape (n_parameter,); NaN where the random error is unknown or a parameter
+    unidentifiable).
+
+    ``Cov = H^-1 G^T Sigma G H^-1`` with ``Sigma`` diagonal: each weighted residual's
+    variance ``weight W_g (20 / ln 10 eps)^2`` (magnitude, dB) or ``weight W_p (180 / pi
+    eps)^2`` (phase, deg), ``eps`` the normalised random error of the response at the point
+    (docs/methods.md, Eq. 9; composite: the windows' weighted mean). Unlike
+    :func:`residual_scaled_bounds` it sees the noise only, not the structure's misfit.
+    """
+    theta = np.asarray(theta, float)
+    Minv = np.asarray(information_inverse, dtype=float)
+    out = np.full(theta.size, np.nan)
+    ok = np.isfinite(np.diag(Minv)) if theta.size else np.zeros(0, bool)
+    if not np.any(ok) or not np.all(np.isfinite(data.random_error)):
+        return out
+    G = _Problem(structure, data).jacobian(theta)[:, ok]
+    var = np.concatenate([data.weight * W_G * (_DB * data.random_error) ** 2,
+                          data.weight * W_P * (_DEG * data.random_error) ** 2])
+    Hi = Minv[np.ix_(ok, ok)]
+    out[ok] = np.sqrt(np.abs(np.diag(Hi @ (G.T * var) @ G @ Hi)))
+    return out
+
+
 # --------------------------------------------------------------------------------------------
 # The fit
 # --------------------------------------------------------------------------------------------
@@ -978,9 +1009,11 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
     pair_cost["J_ave"] = final.J_ave
     scaled = residual_scaled_bounds(final.structure, data, final.theta,
                                     final.statistics.covariance)
+    noise = random_error_bounds(final.structure, data, final.theta,
+                                final.statistics.covariance)
     elapsed = time.perf_counter() - t_start
     model = _model_dataset(final, data, reduction, start_kind, restart, counter, fr, elapsed,
-                           method, scaled)
+                           method, scaled, noise)
     model.attrs["anchored_parameters"] = json.dumps(anchored)
     return FrequencyFitResult(model, final.structure, final.theta, final.statistics, pair_cost,
                               final.J, final.J_ave, data, reduction, start_kind, restart,
@@ -990,7 +1023,8 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
 
 
 def _model_dataset(final: _Converged, data: FitData, reduction, start_kind, restart, counter,
-                   fr, elapsed, method, scaled: ColouredBounds | None = None) -> xr.Dataset:
+                   fr, elapsed, method, scaled: ColouredBounds | None = None,
+                   noise: np.ndarray | None = None) -> xr.Dataset:
     st = final.structure
     attrs = {
         "method": "frequency_domain",
@@ -1048,4 +1082,11 @@ def _model_dataset(final: _Converged, data: FitData, reduction, start_kind, rest
         "long_name": "Cramer-Rao bound scaled by the fit residuals (one standard deviation)"})
     ds["cramer_rao_percent_corrected"] = ("parameter", cr_cp, {
         "long_name": "residual-scaled Cramer-Rao bound in percent of |value|", "units": "%"})
+    cr_n = np.full(ds.sizes["parameter"], np.nan)
+    if noise is not None and len(st.free_names):
+        pos = {str(p): k for k, p in enumerate(ds.parameter.values)}
+        cr_n[[pos[name] for name in st.free_names]] = noise
+    ds["cramer_rao_noise"] = ("parameter", cr_n, {
+        "long_name": "bound from the spectral random error of the fitted points (one standard "
+                     "deviation; measurement noise only)"})
     return ds

@@ -48,6 +48,7 @@ The ``batch.nc`` Dataset (dims ``condition``, ``model`` (the identification meth
   identified parameters (derivatives and delays), NaN where a method did not estimate it;
   ``cramer_rao_corrected`` (same dims): the bound corrected for coloured residuals (time
   domain) or scaled by the fit residuals (frequency domain, over its fitted points);
+  ``cramer_rao_noise``: the frequency-domain bound from the spectral random error;
 - the Monte Carlo calibration of the bounds (:func:`calibration`; with at least two
   successful seeds at an airspeed), dims ``calibration_kt`` x ``dominant`` (the dominant
   derivatives, :data:`sysid.assess.comparison.DOMINANT`) x ``bound``
@@ -343,6 +344,7 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
     cr = np.full_like(value, np.nan)
     crp = np.full_like(value, np.nan)
     crc = np.full_like(value, np.nan)
+    crn = np.full_like(value, np.nan)
     j_ave = np.full(len(methods), np.nan)
     for i, (method, model) in enumerate(models.items()):
         index = {str(p): k for k, p in enumerate(model.parameter.values)}
@@ -357,6 +359,8 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
                 crp[i, j] = float(model["cramer_rao_percent"].values[k])
             if "cramer_rao_corrected" in model:
                 crc[i, j] = float(model["cramer_rao_corrected"].values[k])
+            if "cramer_rao_noise" in model:
+                crn[i, j] = float(model["cramer_rao_noise"].values[k])
         j_ave[i] = float(model.attrs.get("J_ave", np.nan))
     truth_values = parameter_values(truth, names)
     j_rms = np.full(len(methods), np.nan)
@@ -375,6 +379,8 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
          "cramer_rao_percent": (dims, crp, {"units": "%"}),
          "cramer_rao_corrected": (dims, crc, {
              "long_name": "Cramer-Rao bound corrected for coloured residuals"}),
+         "cramer_rao_noise": (dims, crn, {
+             "long_name": "frequency-domain bound from the spectral random error"}),
          "truth": (("parameter",), truth_values,
                    {"long_name": "truth model's quasi-steady linearisation"}),
          "J_ave": (("model",), j_ave, {"long_name": "average frequency-domain cost"}),
@@ -720,12 +726,14 @@ def format_monte_carlo(mc: xr.Dataset) -> str:
 
 
 #: The bounds the Monte Carlo calibration judges: the frequency-domain Cramer-Rao bound (CIFER
-#: convention) and the same scaled by the fit residuals, the time-domain white-noise bound
+#: convention), the same scaled by the fit residuals and the one from the spectral random
+#: error, the time-domain white-noise bound
 #: and the time-domain bound corrected for coloured residuals, as
 #: ``name -> (model, batch.nc variable)``.
 CALIBRATION_BOUNDS = {
     "frequency_domain": ("frequency_domain", "cramer_rao"),
     "frequency_domain_scaled": ("frequency_domain", "cramer_rao_corrected"),
+    "frequency_domain_noise": ("frequency_domain", "cramer_rao_noise"),
     "time_domain_white": ("time_domain", "cramer_rao"),
     "time_domain_corrected": ("time_domain", "cramer_rao_corrected"),
 }
@@ -853,6 +861,7 @@ def plot_calibration(ds: xr.Dataset, path: str | Path) -> Path | None:
     fig, axes = plt.subplots(1, len(speeds), figsize=(7.5 * len(speeds), 3.8), squeeze=False)
     styles = {"frequency_domain": ("C0", "o", "FD: CR bound (CIFER)"),
               "frequency_domain_scaled": ("C9", "v", "FD: scaled by the residuals"),
+              "frequency_domain_noise": ("C1", "x", "FD: from the spectral random error"),
               "time_domain_white": ("C3", "s", "TD: white-noise CR bound"),
               "time_domain_corrected": ("C2", "D", "TD: corrected for coloured residuals")}
     names = [str(n) for n in ds.dominant.values]
