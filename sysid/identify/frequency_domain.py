@@ -80,6 +80,7 @@ import xarray as xr
 
 from sysid.core.errors import IdentificationError, InputDataError
 from sysid.core.guidelines import COHERENCE_MIN, FIT_TIME_LIMIT_S
+from sysid.identify.least_squares import compress
 from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
                                       stepwise_reduction)
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters,
@@ -415,6 +416,8 @@ class _Problem:
         self.n_jac = 0
         self._cache_key = None
         self._cache = None
+        self._compressed_key = None
+        self._compressed_value = None
 
     def _eval(self, theta, jacobian):
         key = (theta.tobytes(), jacobian)
@@ -439,6 +442,25 @@ class _Problem:
         self.n_jac += 1
         T, dT = self._eval(np.asarray(theta, float), True)
         return response_jacobian(T, dT, self.data)
+
+    def compressed_residuals(self, theta):
+        """The problem in ``n + 1`` rows (:func:`sysid.identify.least_squares.compress`): the
+        same steps as the full one without an SVD of the tall Jacobian per iteration."""
+        self.n_cost += 1
+        return self._compressed(np.asarray(theta, float))[0]
+
+    def compressed_jacobian(self, theta):
+        self.n_jac += 1
+        return self._compressed(np.asarray(theta, float))[1]
+
+    def _compressed(self, theta):
+        key = theta.tobytes()
+        if self._compressed_key != key:
+            T, dT = self._eval(theta, True)
+            self._compressed_value = compress(response_residuals(T, self.data),
+                                              response_jacobian(T, dT, self.data))
+            self._compressed_key = key
+        return self._compressed_value
 
     def pair_costs(self, theta) -> np.ndarray:
         r = self.residuals(theta)
@@ -710,10 +732,10 @@ class _Converged:
 def _solve(problem: _Problem, theta0, *, method: str, tol: float, max_nfev: int | None,
            deadline: Deadline | None = None) -> scipy.optimize.OptimizeResult:
     lo, hi = problem.structure.bounds
-    residuals = problem.residuals if deadline is None else deadline.wrap(problem.residuals)
     theta0 = np.clip(np.asarray(theta0, float), lo, hi)
     bounded = np.any(np.isfinite(lo)) or np.any(np.isfinite(hi))
     if method == "lm":
+        residuals = problem.residuals if deadline is None else deadline.wrap(problem.residuals)
         if bounded:
             raise IdentificationError("method 'lm' (MINPACK) cannot honour parameter bounds "
                                       "(e.g. delays in 0..0.3 s); use method='trf'")
@@ -723,7 +745,10 @@ def _solve(problem: _Problem, theta0, *, method: str, tol: float, max_nfev: int 
     # keep strictly inside the bounds (trf requirement)
     span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
     theta0 = np.clip(theta0, lo + 1e-9 * span, hi - 1e-9 * span)
-    return scipy.optimize.least_squares(residuals, theta0, jac=problem.jacobian,
+    residuals = problem.compressed_residuals
+    if deadline is not None:
+        residuals = deadline.wrap(residuals)
+    return scipy.optimize.least_squares(residuals, theta0, jac=problem.compressed_jacobian,
                                         bounds=(lo, hi), method=method, x_scale="jac",
                                         ftol=tol, xtol=tol, gtol=tol, max_nfev=max_nfev)
 

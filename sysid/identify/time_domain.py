@@ -103,6 +103,7 @@ from sysid.core.guidelines import FIT_TIME_LIMIT_S
 from sysid.core.util import Deadline, Progress
 from sysid.data.campaign import TRIM_WINDOW, record_trim
 from sysid.data.importers import validate_time_history
+from sysid.identify.least_squares import compress
 from sysid.identify.reduction import GUIDELINES, FitOutcome, ReductionResult, stepwise_reduction
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters,
                                       ParameterStatistics, coloured_residual_covariance,
@@ -548,14 +549,7 @@ class OutputErrorModel:
     def _compressed(self, theta):
         ev = self.evaluate(theta, jacobian=True)
         if ev.compressed is None:
-            r, J = ev.residual, ev.jacobian
-            n = J.shape[1]
-            if not np.all(np.isfinite(r)):  # diverged trial model: the solver steps back
-                ev.compressed = (np.full(n + 1, np.inf), np.zeros((n + 1, n)))
-            else:
-                RJ, qr = _triangle(J, r)
-                rest = math.sqrt(max(float(r @ r) - float(qr @ qr), 0.0))
-                ev.compressed = (np.append(qr, rest), np.vstack([RJ, np.zeros((1, n))]))
+            ev.compressed = compress(ev.residual, ev.jacobian)
         return ev.compressed
 
     def set_sigma(self, sigma) -> None:
@@ -614,30 +608,6 @@ def _independent_columns(Nm: np.ndarray, rtol: float = 1e-7) -> tuple[np.ndarray
 def _chol_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Solve ``(L L^T) x = b``."""
     return scipy.linalg.cho_solve((L, True), b)
-
-
-def _triangle(J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(R_J, Q^T r)`` of the thin factorisation ``J = Q R_J`` (J: m x n, m >> n).
-
-    From the Cholesky factor of the column-scaled Gram matrix ``J^T J`` (one BLAS-3 product
-    instead of a QR of the tall matrix), ``Q^T r = R_J^-T J^T r``; when the
-    scaled Gram matrix is too ill-conditioned for that (reciprocal condition below 1e-10,
-    i.e. J's above 1e5), the QR of J itself.
-    """
-    d = np.sqrt(np.einsum("ij,ij->j", J, J))
-    d = np.where(d > 0, d, 1.0)
-    Js = J / d
-    Gram = Js.T @ Js
-    try:
-        U = scipy.linalg.cholesky(Gram, lower=False)
-        diag = np.diag(U)
-        if np.min(diag) ** 2 < 1e-10 * np.max(diag) ** 2:
-            raise np.linalg.LinAlgError("ill-conditioned")
-    except np.linalg.LinAlgError:
-        Q, R = scipy.linalg.qr(J, mode="economic")
-        return R, Q.T @ r
-    qr = scipy.linalg.solve_triangular(U, Js.T @ r, trans="T", lower=False)
-    return U * d, qr
 
 
 # --------------------------------------------------------------------------------------------

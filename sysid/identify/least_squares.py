@@ -1,0 +1,62 @@
+"""The nonlinear least-squares problem handed to the trust-region solver, compressed.
+
+For residuals ``r`` (m) and Jacobian ``J`` (m x n, m >> n) with the thin factorisation
+``J = Q R_J``, the problem with ``n + 1`` rows
+
+    f = [Q^T r, |r - Q Q^T r|],      J_f = [R_J; 0]
+
+has the same cost ``|f|^2 = |r|^2``, gradient ``J_f^T f = J^T r``, column norms and every
+Gauss-Newton model ``|f + J_f p| = |r + J p|``, so a trust-region solver takes the same
+steps to rounding without factorising the tall Jacobian at every iteration. Both fits use it
+(docs/notes/2026-11-24-time-domain-speed.md measures the saving).
+
+References
+----------
+* Golub, G. H. and Van Loan, C. F., *Matrix Computations*, 4th ed., Johns Hopkins, 2013,
+  sec. 5.3 (least squares by QR; the residual norm from the discarded part).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.linalg
+
+__all__ = ["compress", "triangle"]
+
+
+def triangle(J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(R_J, Q^T r)`` of the thin factorisation ``J = Q R_J`` (J: m x n, m >> n).
+
+    From the Cholesky factor of the column-scaled Gram matrix ``J^T J`` (one BLAS-3 product
+    instead of a QR of the tall matrix), ``Q^T r = R_J^-T J^T r``; when the
+    scaled Gram matrix is too ill-conditioned for that (reciprocal condition below 1e-10,
+    i.e. J's above 1e5), the QR of J itself.
+    """
+    d = np.sqrt(np.einsum("ij,ij->j", J, J))
+    d = np.where(d > 0, d, 1.0)
+    Js = J / d
+    Gram = Js.T @ Js
+    try:
+        U = scipy.linalg.cholesky(Gram, lower=False)
+        diag = np.diag(U)
+        if np.min(diag) ** 2 < 1e-10 * np.max(diag) ** 2:
+            raise np.linalg.LinAlgError("ill-conditioned")
+    except np.linalg.LinAlgError:
+        Q, R = scipy.linalg.qr(J, mode="economic")
+        return R, Q.T @ r
+    qr = scipy.linalg.solve_triangular(U, Js.T @ r, trans="T", lower=False)
+    return U * d, qr
+
+
+def compress(r: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The compressed problem ``(f, J_f)``: ``n + 1`` residuals and their ``(n + 1) x n``
+    Jacobian (module docstring). Non-finite residuals (a diverged trial model) give an
+    infinite cost, so the solver steps back."""
+    n = J.shape[1]
+    if not np.all(np.isfinite(r)) or not np.all(np.isfinite(J)):
+        return np.full(n + 1, np.inf), np.zeros((n + 1, n))
+    RJ, qr = triangle(J, r)
+    rest = math.sqrt(max(float(r @ r) - float(qr @ qr), 0.0))
+    return np.append(qr, rest), np.vstack([RJ, np.zeros((1, n))])
