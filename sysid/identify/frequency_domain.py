@@ -85,7 +85,8 @@ from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
                                       stepwise_reduction)
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters,
                                       ParameterStatistics, coloured_residual_covariance,
-                                      parameter_rows, parameter_statistics, perturbed_start)
+                                      on_parameters, parameter_rows, parameter_statistics,
+                                      perturbed_start)
 from sysid.models import LinearStructure
 from sysid.core.util import Deadline, Progress
 
@@ -1090,13 +1091,11 @@ def _model_dataset(final: _Converged, data: FitData, reduction, start_kind, rest
                        {"long_name": "lowest fitted frequency", "units": "rad/s"})
     ds["omega_max"] = (("output", "input"), wmax,
                        {"long_name": "highest fitted frequency", "units": "rad/s"})
-    cr_c = np.full(ds.sizes["parameter"], np.nan)
-    cr_cp = np.full_like(cr_c, np.nan)
+    cr_c = on_parameters(ds.parameter.values, st.free_names,
+                         None if scaled is None else scaled.cramer_rao)
+    cr_cp = on_parameters(ds.parameter.values, st.free_names,
+                          None if scaled is None else scaled.percent(final.theta))
     if scaled is not None:
-        pos = {str(p): k for k, p in enumerate(ds.parameter.values)}
-        idx = np.array([pos[name] for name in st.free_names], dtype=int)
-        cr_c[idx] = scaled.cramer_rao
-        cr_cp[idx] = scaled.percent(final.theta)
         ds.attrs.update(residual_decay_lag_points=int(scaled.decay_lag),
                         residual_window_lag_points=int(scaled.window_lag))
     ds.attrs["cramer_rao_corrected_convention"] = (
@@ -1107,10 +1106,7 @@ def _model_dataset(final: _Converged, data: FitData, reduction, start_kind, rest
         "long_name": "Cramer-Rao bound scaled by the fit residuals (one standard deviation)"})
     ds["cramer_rao_percent_corrected"] = ("parameter", cr_cp, {
         "long_name": "residual-scaled Cramer-Rao bound in percent of |value|", "units": "%"})
-    cr_n = np.full(ds.sizes["parameter"], np.nan)
-    if noise is not None and len(st.free_names):
-        pos = {str(p): k for k, p in enumerate(ds.parameter.values)}
-        cr_n[[pos[name] for name in st.free_names]] = noise
+    cr_n = on_parameters(ds.parameter.values, st.free_names, noise)
     ds["cramer_rao_noise"] = ("parameter", cr_n, {
         "long_name": "bound from the spectral random error of the fitted points (one standard "
                      "deviation; measurement noise only)"})

@@ -410,6 +410,16 @@ class ColouredBounds:
             return np.where(absval > 0, 100.0 * self.cramer_rao / absval, np.inf)
 
 
+def on_parameters(parameters, free_names: Sequence[str], values) -> np.ndarray:
+    """``values`` of the free parameters ``free_names`` placed on the model's whole
+    ``parameter`` axis (fixed ones NaN); ``values=None`` gives all NaN."""
+    out = np.full(len(parameters), np.nan)
+    if values is not None and len(free_names):
+        pos = {str(p): k for k, p in enumerate(np.asarray(parameters))}
+        out[[pos[name] for name in free_names]] = values
+    return out
+
+
 def coloured_residual_covariance(*, sensitivities: Sequence[np.ndarray],
                                  residuals: Sequence[np.ndarray], information_inverse,
                                  window_lag: int | None = None) -> ColouredBounds:

@@ -107,7 +107,8 @@ from sysid.identify.least_squares import compress
 from sysid.identify.reduction import GUIDELINES, FitOutcome, ReductionResult, stepwise_reduction
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters,
                                       ParameterStatistics, coloured_residual_covariance,
-                                      parameter_rows, parameter_statistics, perturbed_start)
+                                      on_parameters, parameter_rows, parameter_statistics,
+                                      perturbed_start)
 from sysid.models import LinearStructure, propagate
 
 __all__ = [
@@ -1093,13 +1094,11 @@ def _model_dataset(final: _Converged, joint: ParameterStatistics, recs, outs, re
                                          "estimated"})
     ds["initial_state_cramer_rao"] = (("record", "state"), x0_cr,
                                       {"long_name": "Cramer-Rao bound of the initial state"})
-    cr_c = np.full(ds.sizes["parameter"], np.nan)
-    cr_cp = np.full_like(cr_c, np.nan)
+    cr_c = on_parameters(ds.parameter.values, st.free_names,
+                         None if coloured is None else coloured.cramer_rao)
+    cr_cp = on_parameters(ds.parameter.values, st.free_names,
+                          None if coloured is None else coloured.percent(final.theta))
     if coloured is not None:
-        pos = {str(p): k for k, p in enumerate(ds.parameter.values)}
-        idx = np.array([pos[name] for name in st.free_names], dtype=int)
-        cr_c[idx] = coloured.cramer_rao
-        cr_cp[idx] = coloured.percent(final.theta)
         dt = recs[0].dt
         ds.attrs.update(residual_decay_lag_s=float(coloured.decay_lag * dt),
                         residual_window_lag_s=float(coloured.window_lag * dt))
