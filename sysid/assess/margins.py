@@ -193,6 +193,27 @@ def _campaign_spec(data: CampaignData) -> Campaign:
     return Campaign.from_dict(tomllib.loads(str(text)), where=f"{data.source}: campaign_toml")
 
 
+def _loop_parts(data: CampaignData, model: str):
+    """``/linearization`` (the holds' design model), the plant ``/<model>``, ``/trim``, the
+    plant's ``(A, B, C, D, tau)`` with the inputs in :data:`CONTROLS` order, and the columns
+    of the 6-DoF states among its states; errors name the group or channel missing."""
+    lin, plant, trim = data.quasi_steady(), data.group(model), data.group("trim")
+    for name, ds in (("linearization", lin), (model, plant), ("trim", trim)):
+        if ds is None:
+            raise InputDataError(f"campaign {data.source}: no /{name} group (written by the "
+                                 "flight-test stage)")
+    A, B, C, D, tau = model_matrices(plant)
+    states = [str(s) for s in plant["A"].state.values]
+    inputs = [str(s) for s in plant["B"].input.values]
+    absent = [s for s in STATES_6DOF if s not in states] + [c for c in CONTROLS
+                                                            if c not in inputs]
+    if absent:
+        raise InputDataError(f"campaign {data.source}: /{model} lacks {absent}")
+    order = [inputs.index(c) for c in CONTROLS]
+    return (lin, plant, trim, (A, B[:, order], C, D[:, order], tau),
+            [states.index(s) for s in STATES_6DOF])
+
+
 def hold_margins(data: CampaignData, *, model: str = "linearization_full",
                  grid: tuple[float, float, int] = MARGIN_GRID) -> xr.Dataset:
     """Crossover and margins of each stabilisation hold of a flown campaign.
@@ -217,33 +238,18 @@ def hold_margins(data: CampaignData, *, model: str = "linearization_full",
     if not stab.enabled:
         raise InputDataError(f"campaign {data.source}: stabilisation is off; no holds to "
                              "analyse")
-    lin = data.quasi_steady()
-    plant = data.group(model)
-    trim = data.group("trim")
-    for name, ds in (("linearization", lin), (model, plant), ("trim", trim)):
-        if ds is None:
-            raise InputDataError(f"campaign {data.source}: no /{name} group (written by the "
-                                 "flight-test stage)")
+    lin, plant, trim, (A, B, _, _, _), cols = _loop_parts(data, model)
     missing = [c for c in MEASUREMENTS if c not in trim]
     if missing:
         raise InputDataError(f"campaign {data.source}: /trim lacks {missing}")
     trim_y = {c: float(trim[c]) for c in MEASUREMENTS}
     loops = design_loops(lin, stab)
-    A, B, _, _, _ = model_matrices(plant)
-    states = [str(s) for s in plant["A"].state.values]
-    inputs = [str(s) for s in plant["B"].input.values]
-    absent = [s for s in STATES_6DOF if s not in states] + [c for c in CONTROLS
-                                                            if c not in inputs]
-    if absent:
-        raise InputDataError(f"campaign {data.source}: /{model} lacks {absent}")
-    B = B[:, [inputs.index(c) for c in CONTROLS]]
-    cols = [states.index(s) for s in STATES_6DOF]
     omega = np.logspace(math.log10(grid[0]), math.log10(grid[1]), int(grid[2]))
     keys = ("gain_crossover", "phase_margin", "phase_crossover", "gain_margin_db",
             "phase_crossover_low", "gain_margin_low_db", "stability_margin")
     out = {k: np.full((len(CONTROLS), len(CONTROLS)), np.nan) for k in keys}
     for e, excited in enumerate(CONTROLS):
-        K = np.zeros((len(CONTROLS), len(states)))
+        K = np.zeros((len(CONTROLS), A.shape[0]))
         K[:, cols] = hold_gains(loops, stab, trim_y, excited).sel(input=list(CONTROLS)).values
         for h in range(len(CONTROLS)):
             m = loop_margins(broken_loop_response(A, B, K, h, omega), omega)
@@ -292,26 +298,11 @@ def linear_replay(data: CampaignData, *, model: str = "linearization_full",
     """
     spec = _campaign_spec(data)
     stab = spec.stabilisation
-    plant = data.group(model)
-    lin, trim = data.quasi_steady(), data.group("trim")
-    for name, ds in (("linearization", lin), (model, plant), ("trim", trim)):
-        if ds is None:
-            raise InputDataError(f"campaign {data.source}: no /{name} group (written by the "
-                                 "flight-test stage)")
-    A, B, C, D, tau = model_matrices(plant)
+    lin, plant, trim, (A, B, C, D, tau), cols = _loop_parts(data, model)
     if np.any(tau != 0):
         raise InputDataError(f"campaign {data.source}: /{model} has delays; the replay needs "
                              "a delay-free model (the truth's linearisations are)")
-    states = [str(s) for s in plant["A"].state.values]
-    inputs = [str(s) for s in plant["B"].input.values]
     outputs = [str(s) for s in plant["C"].output.values]
-    absent = [s for s in STATES_6DOF if s not in states] + [c for c in CONTROLS
-                                                            if c not in inputs]
-    if absent:
-        raise InputDataError(f"campaign {data.source}: /{model} lacks {absent}")
-    order = [inputs.index(c) for c in CONTROLS]
-    B, D = B[:, order], D[:, order]
-    cols = [states.index(s) for s in STATES_6DOF]
     trim_y = {c: float(trim[c]) for c in MEASUREMENTS if c in trim}
     loops = design_loops(lin, stab)
     recorded = data.maneuvers(pattern)  # raises when none matches
@@ -328,15 +319,15 @@ def linear_replay(data: CampaignData, *, model: str = "linearization_full",
         Phi, Gamma = discretize(A, B, dt)
         K6 = (hold_gains(loops, stab, trim_y, str(ds.attrs.get("axis")))
               .sel(input=list(CONTROLS), state=list(STATES_6DOF)).values)
-        K = np.zeros((len(CONTROLS), len(states)))
+        K = np.zeros((len(CONTROLS), A.shape[0]))
         K[:, cols] = K6
         u_trim = np.array([float(ds.attrs[f"trim_{c}"]) for c in CONTROLS])
         y_trim = np.array([float(ds.attrs[f"trim_{c}"]) for c in STATES_6DOF])
         U = np.stack([ds[c].values for c in CONTROLS], axis=1) - u_trim
         Y = np.stack([ds[c].values for c in STATES_6DOF], axis=1) - y_trim
         pilot = U - Y @ K6.T
-        x = np.zeros(len(states))
-        X = np.empty((len(time), len(states)))
+        x = np.zeros(A.shape[0])
+        X = np.empty((len(time), A.shape[0]))
         Uc = np.empty_like(pilot)
         for k in range(len(time)):
             X[k] = x
