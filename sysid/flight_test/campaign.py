@@ -45,7 +45,7 @@ import sysid
 from sysid import truth
 from sysid.core.errors import InputDataError, SimulationDiverged
 from sysid.core.units import CONTROLS, KT, STATES_6DOF, channel_attrs, convert
-from sysid.core.util import Progress, atomic_path
+from sysid.core.util import Progress
 from sysid.data.netcdf import write_campaign
 from sysid.signals import inputs
 

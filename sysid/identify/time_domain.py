@@ -101,7 +101,7 @@ import xarray as xr
 from sysid.core.errors import IdentificationError, InputDataError
 from sysid.core.guidelines import FIT_TIME_LIMIT_S
 from sysid.core.util import Deadline, Progress
-from sysid.data.campaign import TRIM_WINDOW, record_trim
+from sysid.data.campaign import record_trim
 from sysid.data.importers import validate_time_history
 from sysid.identify.least_squares import compress
 from sysid.identify.reduction import GUIDELINES, FitOutcome, ReductionResult, stepwise_reduction
