@@ -38,7 +38,7 @@ from sysid.core.util import atomic_path
 from sysid.data.campaign import first_window_mean
 from sysid.data.formats import FORMATS, Group, read_groups, sniff_format, write_groups
 from sysid.data.netcdf import decode_attrs, decode_complex, encode_attrs, json_default
-from sysid.data.resample import Piece, resample_record
+from sysid.data.resample import Piece, ordered_steps, resample_record
 
 __all__ = ["TIME_RTOL", "KINDS", "WRITE_FORMATS", "validate_time_history", "write_csv",
            "write_time_histories", "read_time_history", "read_time_histories"]
@@ -63,25 +63,7 @@ def _check_time_grid(t: np.ndarray, where: str, row_label=None, rtol: float = TI
     ``row_label(i)`` describes sample ``i`` in messages (e.g. the line of a CSV file).
     """
     label = row_label or (lambda i: f"sample {i}")
-    if t.ndim != 1:
-        raise InputDataError(f"{where}: time must be one-dimensional, got shape {t.shape}")
-    if t.size < 2:
-        raise InputDataError(f"{where}: time has {t.size} sample(s); expected at least 2")
-    bad = np.flatnonzero(~np.isfinite(t))
-    if bad.size:
-        raise InputDataError(f"{where}: time is not finite at {label(bad[0])} ({t[bad[0]]})")
-    with np.errstate(over="ignore", invalid="ignore"):
-        steps = np.diff(t)
-        span = t[-1] - t[0]
-    if not np.isfinite(span):
-        raise InputDataError(f"{where}: time span {float(t[0])!r} .. {float(t[-1])!r} "
-                             "overflows; expected times in seconds of a manoeuvre")
-    back = np.flatnonzero(steps <= 0)
-    if back.size:
-        i = back[0] + 1
-        raise InputDataError(
-            f"{where}: time is not strictly increasing at {label(i)}: "
-            f"t = {float(t[i])!r} after {float(t[i - 1])!r}")
+    steps = ordered_steps(t, where, label)
     dt = _typical_step(steps, rtol)
     off = np.flatnonzero(np.abs(steps - dt) > rtol * dt)
     if off.size:

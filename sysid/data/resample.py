@@ -40,7 +40,7 @@ import numpy as np
 from sysid.core.errors import InputDataError
 from sysid.core.guidelines import GAP_MAX_STEPS, GAP_MIN_STEPS
 
-__all__ = ["ANTIALIAS_CUTOFF", "Piece", "resample_record", "piece_suffix"]
+__all__ = ["ANTIALIAS_CUTOFF", "Piece", "ordered_steps", "resample_record", "piece_suffix"]
 
 #: -6 dB cutoff of the anti-aliasing FIR as a fraction of the new Nyquist frequency.
 ANTIALIAS_CUTOFF = 0.8
@@ -125,6 +125,32 @@ def _jitter(t: np.ndarray, dt: float) -> float:
     return float(np.max(np.abs(t - dt * index - offset)) / dt)
 
 
+def ordered_steps(t: np.ndarray, where: str, label=None) -> np.ndarray:
+    """Steps ``diff(t)`` (s) of a one-dimensional, finite, strictly increasing time vector
+    of at least 2 samples; :class:`InputDataError` naming the first offending sample
+    (``label(i)``, e.g. a CSV line) otherwise."""
+    label = label or (lambda i: f"sample {i}")
+    if t.ndim != 1:
+        raise InputDataError(f"{where}: time must be one-dimensional, got shape {t.shape}")
+    if t.size < 2:
+        raise InputDataError(f"{where}: time has {t.size} sample(s); expected at least 2")
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise InputDataError(f"{where}: time is not finite at {label(bad[0])} ({t[bad[0]]})")
+    with np.errstate(over="ignore", invalid="ignore"):
+        steps = np.diff(t)
+        span = t[-1] - t[0]
+    if not np.isfinite(span):
+        raise InputDataError(f"{where}: time span {float(t[0])!r} .. {float(t[-1])!r} "
+                             "overflows; expected times in seconds of a manoeuvre")
+    back = np.flatnonzero(steps <= 0)
+    if back.size:
+        i = int(back[0]) + 1
+        raise InputDataError(f"{where}: time is not strictly increasing at {label(i)}: "
+                             f"t = {float(t[i])!r} after {float(t[i - 1])!r}")
+    return steps
+
+
 def resample_record(t, values, *, rate, where: str = "record",
                     label=None) -> list[Piece]:
     """Put a record on a uniform grid: cubic-spline interpolation, a zero-phase anti-aliasing
@@ -167,20 +193,9 @@ def resample_record(t, values, *, rate, where: str = "record",
     values = np.asarray(values, dtype=float)
     if values.ndim == 1:
         values = values[:, None]
-    if t.ndim != 1 or values.shape[0] != t.size:
+    if t.ndim == 1 and values.shape[0] != t.size:
         raise InputDataError(f"{where}: time {t.shape} and values {values.shape} disagree")
-    if t.size < 2:
-        raise InputDataError(f"{where}: {t.size} sample(s); expected at least 2 to resample")
-    bad = np.flatnonzero(~np.isfinite(t))
-    if bad.size:
-        raise InputDataError(f"{where}: time is not finite at {label(bad[0])}")
-    steps = np.diff(t)
-    back = np.flatnonzero(steps <= 0)
-    if back.size:
-        i = int(back[0]) + 1
-        raise InputDataError(f"{where}: time is not strictly increasing at {label(i)}: "
-                             f"t = {t[i]!r} after {t[i - 1]!r}; resampling needs ordered "
-                             "samples")
+    steps = ordered_steps(t, where, label)
     dt = _clock_step(t, float(np.median(steps)))
     if isinstance(rate, str):
         if rate != "auto":
