@@ -34,7 +34,7 @@ import scipy.signal
 import known_systems as ks
 import trust_system as ts
 from sysid.core.units import CONTROLS, STATES_6DOF
-from sysid.identify import identify_frequency_domain, identify_time_domain
+from sysid.identify import identify_frequency_domain
 from sysid.spectral.response import frequency_response
 
 GOAL = (0.5, 2.0)           #: scatter / mean bound of an honest bound (issue 21)
@@ -140,19 +140,11 @@ def test_time_domain_corrected_bounds_match_the_scatter_of_coloured_noise():
     (median 1.34: slightly optimistic, the truncated lag sum of short records)."""
     st = ks.truth_structure()
     clean = ks.multistep_records(noise=0.0, duration=15.0)
-    est, white, corrected = [], [], []
-    for seed in range(40):
-        result = identify_time_domain(coloured_noise(clean, seed), st, start=st.theta0,
-                                      reduce=False, tol=1e-6)
-        est.append(result.theta)
-        white.append(result.statistics.cramer_rao)
-        corrected.append(result.model["cramer_rao_corrected"].sel(
-            parameter=list(st.free_names)).values)
-    scatter = np.std(est, axis=0, ddof=1)
-    ratio_white = scatter / np.mean(white, axis=0)
-    ratio_corrected = scatter / np.mean(corrected, axis=0)
-    report = {"white": dict(zip(st.free_names, np.round(ratio_white, 2))),
-              "corrected": dict(zip(st.free_names, np.round(ratio_corrected, 2)))}
+    ratios, _, _ = ks.time_domain_bound_ratios(st, lambda seed: coloured_noise(clean, seed),
+                                               range(40))
+    ratio_white = np.array(list(ratios["white"].values()))
+    ratio_corrected = np.array(list(ratios["corrected"].values()))
+    report = {kind: {k: round(float(v), 2) for k, v in r.items()} for kind, r in ratios.items()}
     print(report)
     assert np.all(ratio_white > GOAL[1]), report
     assert np.all((ratio_corrected >= GOAL[0]) & (ratio_corrected <= GOAL[1])), report

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from known_systems import (NOISE_STD, TRIM, TRUE_DELAYS, add_noise,
+from known_systems import (NOISE_STD, TRIM, TRUE_DELAYS, add_noise, time_domain_bound_ratios,
                            multistep_records, truth_structure, truth_values)
 from test_identify_frequency import SPURIOUS
 
@@ -299,27 +299,18 @@ def test_corrected_bounds_predict_the_scatter_of_coloured_noise(correlation_time
     n_seeds = 100 if os.environ.get("SYSID_EXHAUSTIVE") == "1" else 40
     st = _short_period()
     clean = _short_period_records(st)
-    estimates, white, corrected = [], [], []
-    for seed in range(n_seeds):
-        result = identify_time_domain(_with_noise(clean, seed, correlation_time), st,
-                                      start=st.theta0, reduce=False, tol=1e-6)
-        estimates.append(result.theta)
-        white.append(result.statistics.cramer_rao)
-        corrected.append(result.model["cramer_rao_corrected"].sel(
-            parameter=list(st.free_names)).values)
-    scatter = np.std(estimates, axis=0, ddof=1)
-    ratio_white = scatter / np.mean(white, axis=0)
-    ratio_corrected = scatter / np.mean(corrected, axis=0)
-    report = {"white": dict(zip(st.free_names, np.round(ratio_white, 2))),
-              "corrected": dict(zip(st.free_names, np.round(ratio_corrected, 2)))}
+    ratios, means, result = time_domain_bound_ratios(
+        st, lambda seed: _with_noise(clean, seed, correlation_time), range(n_seeds))
+    ratio_white = np.array(list(ratios["white"].values()))
+    ratio_corrected = np.array(list(ratios["corrected"].values()))
+    report = {kind: {k: round(float(v), 2) for k, v in r.items()} for kind, r in ratios.items()}
     assert np.all((ratio_corrected >= 0.6) & (ratio_corrected <= 1.6)), report
     if correlation_time > 0:
         assert np.all(ratio_white > 2.0) and np.median(ratio_white) > 3.0, report
         assert result.model.attrs["residual_window_lag_s"] > correlation_time
     else:
         assert np.all((ratio_white >= 0.6) & (ratio_white <= 1.6)), report
-        np.testing.assert_allclose(np.mean(corrected, axis=0), np.mean(white, axis=0),
-                                   rtol=0.15)
+        np.testing.assert_allclose(means["corrected"], means["white"], rtol=0.15)
 
 
 def test_coloured_correction_kernel_against_the_direct_double_sum():
