@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
-from sysid.assess.comparison import BIAS_MEANING, fidelity_scoreboard, format_scoreboard
+from sysid.assess.comparison import (BEYOND_MISFIT_REASON, BIAS_MEANING, BIAS_REASONS,
+                                     MISFIT_REASON, fidelity_scoreboard, format_scoreboard)
 from sysid.core.guidelines import BIAS_BOUNDS_MAX
 
 NAMES = ["Z_w", "M_q", "tau_M_lon"]
@@ -18,7 +19,7 @@ TRUTH = xr.Dataset({"value": ("parameter", [-0.30, -3.0])},
                    coords={"parameter": ["Z_w", "M_q"]})
 
 
-def model(method, value, bound, corrected=None, free=(True, True, True)):
+def model(method, value, bound, corrected=None, free=(True, True, True), noise=None):
     ds = xr.Dataset({"value": ("parameter", np.asarray(value, float)),
                      "free": ("parameter", np.asarray(free)),
                      "cramer_rao": ("parameter", np.asarray(bound, float)),
@@ -27,6 +28,8 @@ def model(method, value, bound, corrected=None, free=(True, True, True)):
                     coords={"parameter": NAMES}, attrs={"method": method})
     if corrected is not None:
         ds["cramer_rao_corrected"] = ("parameter", np.asarray(corrected, float))
+    if noise is not None:
+        ds["cramer_rao_noise"] = ("parameter", np.asarray(noise, float))
     return ds
 
 
@@ -72,3 +75,40 @@ def test_a_parameter_one_model_does_not_estimate_is_left_blank():
     # a parameter no model estimates is not on the board
     alone = fidelity_scoreboard({"frequency_domain": fd}, TRUTH)
     assert "M_q" not in alone.parameter.values
+
+
+def test_frequency_domain_is_judged_on_the_random_error_bound_with_the_reason():
+    """Frequency domain: the bound from the spectral random error (the one that matches the
+    seed-to-seed scatter) where finite, else the residual-scaled one, else CIFER; a flag
+    says whether the fit's own residuals (the structure's misfit) cover the error."""
+    #                         Z_w: 0.025 off     M_q: 0.9 off       delay
+    fd = model("frequency_domain", [-0.325, -3.9, 0.1], [0.05, 1.0, 0.01],
+               corrected=[0.05, 0.2, 0.01], noise=[0.005, np.nan, 0.001])
+    td = model("time_domain", [-0.40, -3.1, 0.1], [0.01, 0.01, 0.01],
+               corrected=[0.02, 0.05, 0.02])
+    board = fidelity_scoreboard({"frequency_domain": fd, "time_domain": td}, TRUTH)
+    fd_board = board.sel(model="frequency_domain")
+    # Z_w: 0.025 / 0.005 = 5 random-error bounds (flag), 0.5 residual-scaled bounds
+    np.testing.assert_allclose(fd_board["error_in_bounds"].sel(parameter="Z_w"), 5.0)
+    assert str(fd_board["bound_kind"].sel(parameter="Z_w").values) == "random_error"
+    np.testing.assert_allclose(fd_board["cramer_rao"].sel(parameter="Z_w"), 0.05)
+    assert str(fd_board["bias_reason"].sel(parameter="Z_w").values) == MISFIT_REASON
+    # M_q: no random-error bound, so the residual-scaled one: 0.9 / 0.2 = 4.5 (flag)
+    np.testing.assert_allclose(fd_board["error_in_bounds"].sel(parameter="M_q"), 4.5)
+    assert str(fd_board["bound_kind"].sel(parameter="M_q").values) == "scaled"
+    assert str(fd_board["bias_reason"].sel(parameter="M_q").values) == BIAS_MEANING
+    # time domain: Z_w 0.1 / 0.02 = 5 corrected bounds, M_q 0.1 / 0.05 = 2 (no flag)
+    td_board = board.sel(model="time_domain")
+    assert str(td_board["bias_reason"].sel(parameter="Z_w").values) == BIAS_REASONS["corrected"]
+    assert not bool(td_board["bias_flag"].sel(parameter="M_q"))
+    assert str(td_board["bias_reason"].sel(parameter="M_q").values) == ""
+    # an error beyond 3 residual-scaled bounds as well: not the misfit
+    fd_far = model("frequency_domain", [-0.45, -3.0, 0.1], [0.05, 1.0, 0.01],
+                   corrected=[0.04, 0.2, 0.01], noise=[0.005, 0.1, 0.001])
+    far = fidelity_scoreboard({"frequency_domain": fd_far}, TRUTH)
+    assert str(far["bias_reason"].sel(parameter="Z_w", model="frequency_domain").values) \
+        == BEYOND_MISFIT_REASON
+    assert not bool(far["bias_flag"].sel(parameter="M_q", model="frequency_domain"))
+    text = format_scoreboard(board)
+    assert "random_error" in text and MISFIT_REASON in text
+    assert "frequency_domain: Z_w: " + MISFIT_REASON in text

@@ -81,17 +81,58 @@ def derivative_table(models: Mapping[str, xr.Dataset], truth: xr.Dataset | None 
 #: What a scoreboard flag means (shown beside it in the report and by ``sysid compare``).
 BIAS_MEANING = "bias beyond noise: a structure or data problem, not noise"
 
+#: Why a flagged estimate is biased, per kind of bound it was judged on (``bias_reason``).
+#: The frequency-domain ``random_error`` flag is refined by the residual-scaled bound
+#: (:data:`MISFIT_REASON` when the fit's own residuals cover the error, else
+#: :data:`BEYOND_MISFIT_REASON`).
+BIAS_REASONS = {
+    "random_error": "bias beyond the random error: structure misfit",
+    "corrected": ("bias beyond the coloured-residual bound: structure misfit, or coloured "
+                  "residuals under feedback (the bound under-covers when the loop feeds the "
+                  "disturbance into the inputs)"),
+    "scaled": BIAS_MEANING,
+    "cifer": BIAS_MEANING,
+    "white": BIAS_MEANING,
+}
+#: Frequency domain, flagged on the random error but within the residual-scaled bound.
+MISFIT_REASON = ("bias beyond the random error, within the fit residuals: structure misfit "
+                 "(repeatable, not noise)")
+#: Frequency domain, flagged on the random error and beyond the residual-scaled bound too.
+BEYOND_MISFIT_REASON = ("bias beyond the random error and the fit residuals: a data, start "
+                        "or structure problem")
+
+
+def _finite_positive(model: xr.Dataset, variable: str, k: int) -> float | None:
+    if variable not in model:
+        return None
+    value = float(model[variable].values[k])
+    return value if np.isfinite(value) and value > 0 else None
+
 
 def _bound(model: xr.Dataset, k: int) -> tuple[float, float, str]:
-    """``(plain bound, bound used, kind)`` of parameter ``k``: the bound corrected for coloured
-    residuals where the model carries a finite one, else the plain Cramer-Rao bound."""
+    """``(plain bound, bound used, kind)`` of parameter ``k``: the bound calibrated against the
+    seed-to-seed scatter where the model carries a finite one (frequency domain: from the
+    spectral random error, ``random_error``; time domain: corrected for coloured residuals,
+    ``corrected``), else the frequency-domain residual-scaled bound (``scaled``), else the
+    plain Cramer-Rao bound (``cifer`` or ``white``)."""
     plain = float(model["cramer_rao"].values[k])
-    if "cramer_rao_corrected" in model:
-        corrected = float(model["cramer_rao_corrected"].values[k])
-        if np.isfinite(corrected) and corrected > 0:
-            return plain, corrected, "corrected"
-    method = str(model.attrs.get("method", ""))
-    return plain, plain, ("cifer" if method == "frequency_domain" else "white")
+    frequency = str(model.attrs.get("method", "")) == "frequency_domain"
+    order = ((("cramer_rao_noise", "random_error"), ("cramer_rao_corrected", "scaled"))
+             if frequency else (("cramer_rao_corrected", "corrected"),))
+    for variable, kind in order:
+        used = _finite_positive(model, variable, k)
+        if used is not None:
+            return plain, used, kind
+    return plain, plain, ("cifer" if frequency else "white")
+
+
+def _reason(model: xr.Dataset, k: int, kind: str, error: float, threshold: float) -> str:
+    """Why a flagged estimate (parameter ``k``) is biased (:data:`BIAS_REASONS`)."""
+    if kind == "random_error":
+        scaled = _finite_positive(model, "cramer_rao_corrected", k)
+        if scaled is not None:
+            return MISFIT_REASON if abs(error) <= threshold * scaled else BEYOND_MISFIT_REASON
+    return BIAS_REASONS[kind]
 
 
 def fidelity_scoreboard(models: Mapping[str, xr.Dataset], truth: xr.Dataset | None = None, *,
@@ -99,25 +140,29 @@ def fidelity_scoreboard(models: Mapping[str, xr.Dataset], truth: xr.Dataset | No
     """Each identified parameter's error against the truth in units of its own bound.
 
     For every parameter free in any model and every model (method): the estimate, its bound
-    ``sigma`` (one standard deviation: ``cramer_rao_corrected`` where the model carries it,
-    i.e. the time-domain bound corrected for coloured residuals or the frequency-domain bound
-    scaled by the fit residuals, else the plain Cramer-Rao bound; docs/methods.md,
-    "Accuracy"), the truth's quasi-steady value, the error ``value - truth`` and
+    ``sigma`` (one standard deviation, the bound that matches the seed-to-seed scatter:
+    frequency domain ``cramer_rao_noise``, from the spectral random error; time domain
+    ``cramer_rao_corrected``, corrected for coloured residuals; else the frequency-domain
+    residual-scaled bound, else the plain Cramer-Rao bound; docs/methods.md, "Accuracy"),
+    the truth's quasi-steady value, the error ``value - truth`` and
 
         z = |value - truth| / sigma,     flag = z > threshold (default 3)
 
-    A flagged estimate is biased beyond what the noise explains (:data:`BIAS_MEANING`). NaN
-    where a model does not estimate the parameter or the truth has no value (delays).
+    A flagged estimate is biased beyond what the noise explains (:data:`BIAS_MEANING`);
+    ``bias_reason`` says why (:data:`BIAS_REASONS`). NaN where a model does not estimate the
+    parameter or the truth has no value (delays).
 
     Returns a Dataset over ``parameter`` and ``model`` with ``value``, ``bound``,
-    ``cramer_rao`` (the plain bound), ``bound_kind`` (``"corrected"``, ``"white"`` or
-    ``"cifer"``), ``error``, ``error_in_bounds``, ``bias_flag`` and ``truth`` (parameter);
-    attribute ``bias_bounds_max`` (the threshold).
+    ``cramer_rao`` (the plain bound: CIFER convention or white noise, the one of the
+    guidelines' CR % marks), ``bound_kind`` (``"random_error"``, ``"scaled"``, ``"cifer"``,
+    ``"corrected"`` or ``"white"``), ``error``, ``error_in_bounds``, ``bias_flag``,
+    ``bias_reason`` (empty where not flagged) and ``truth`` (parameter); attribute
+    ``bias_bounds_max`` (the threshold).
 
     Examples
     --------
     >>> board = fidelity_scoreboard(data.models(), data.quasi_steady())    # doctest: +SKIP
-    >>> board["bias_flag"].sel(model="time_domain")                       # doctest: +SKIP
+    >>> board["bias_reason"].sel(model="frequency_domain")                # doctest: +SKIP
     """
     table = derivative_table(models, truth)
     names = [str(n) for n in table.parameter.values]
@@ -126,11 +171,17 @@ def fidelity_scoreboard(models: Mapping[str, xr.Dataset], truth: xr.Dataset | No
     bound = np.full(shape, np.nan)
     plain = np.full(shape, np.nan)
     kind = np.full(shape, "", dtype=object)
-    for i, j, model, k in _free_entries(models, names):
-        plain[i, j], bound[i, j], kind[i, j] = _bound(model, k)
+    reason = np.full(shape, "", dtype=object)
     error = table["value"] - table["truth"]
+    entries = list(_free_entries(models, names))
+    for i, j, model, k in entries:
+        plain[i, j], bound[i, j], kind[i, j] = _bound(model, k)
     with np.errstate(divide="ignore", invalid="ignore"):
         z = np.where(bound > 0, np.abs(error.values) / bound, np.nan)   # no bound: no score
+    flag = np.isfinite(z) & (z > threshold)
+    for i, j, model, k in entries:
+        if flag[i, j]:
+            reason[i, j] = _reason(model, k, kind[i, j], float(error.values[i, j]), threshold)
     dims = ("parameter", "model")
     return xr.Dataset(
         {
@@ -138,12 +189,17 @@ def fidelity_scoreboard(models: Mapping[str, xr.Dataset], truth: xr.Dataset | No
             "bound": (dims, bound, {"long_name": "bound used (one standard deviation)"}),
             "cramer_rao": (dims, plain, {"long_name": "plain Cramer-Rao bound"}),
             "bound_kind": (dims, kind.astype(str),
-                           {"long_name": "corrected (coloured residuals), white (time "
-                                         "domain, white-noise) or cifer (frequency domain)"}),
+                           {"long_name": "random_error (frequency domain, spectral random "
+                                         "error), scaled (frequency domain, fit residuals), "
+                                         "cifer (frequency domain, CIFER convention), "
+                                         "corrected (time domain, coloured residuals) or "
+                                         "white (time domain, white noise)"}),
             "error": error.assign_attrs(long_name="estimate minus truth"),
             "error_in_bounds": (dims, z, {"long_name": "|estimate - truth| / bound"}),
-            "bias_flag": (dims, np.isfinite(z) & (z > threshold),
+            "bias_flag": (dims, flag,
                           {"long_name": f"error beyond {threshold:g} bounds: {BIAS_MEANING}"}),
+            "bias_reason": (dims, reason.astype(str),
+                            {"long_name": "why a flagged estimate is biased (empty: no flag)"}),
             "truth": table["truth"],
         },
         coords={"parameter": names, "model": methods},
@@ -156,7 +212,7 @@ def compare_models(data: CampaignData) -> xr.Dataset:
     """The ``/comparison`` Dataset of a campaign: :func:`derivative_table` of every
     ``/models/<method>`` beside the truth linearisation ``/linearization`` (when present),
     with the :func:`fidelity_scoreboard` variables ``bound``, ``bound_kind``,
-    ``error_in_bounds`` and ``bias_flag``."""
+    ``error_in_bounds``, ``bias_flag`` and ``bias_reason``."""
     models = data.models()
     if not models:
         raise InputDataError(f"{data.source} has no identified models (/models/<method>); "
@@ -170,7 +226,7 @@ def compare_models(data: CampaignData) -> xr.Dataset:
                                     model_from_dataset(first)[0])
     table = derivative_table(models, truth)
     board = fidelity_scoreboard(models, truth)
-    for name in ("bound", "bound_kind", "error_in_bounds", "bias_flag"):
+    for name in ("bound", "bound_kind", "error_in_bounds", "bias_flag", "bias_reason"):
         table[name] = board[name]
     table.attrs.update(bias_bounds_max=board.attrs["bias_bounds_max"],
                        bias_meaning=BIAS_MEANING)
@@ -227,18 +283,23 @@ def format_table(table: xr.Dataset) -> str:
 
 
 def format_scoreboard(board: xr.Dataset) -> str:
-    """The fidelity scoreboard as text: per parameter and method the estimate, its bound,
-    the truth, the error in bounds and a flag beyond the threshold (:func:`fidelity_scoreboard`
-    or a ``/comparison`` Dataset that carries its variables)."""
+    """The fidelity scoreboard as text: per parameter and method the estimate, the plain
+    Cramer-Rao bound (guidelines), the bound the error is judged on and its kind, the truth,
+    the error in bounds and a flag beyond the threshold, then the flagged parameters grouped
+    by reason (:func:`fidelity_scoreboard` or a ``/comparison`` Dataset that carries its
+    variables)."""
     threshold = float(board.attrs.get("bias_bounds_max", BIAS_BOUNDS_MAX))
     methods = [str(m) for m in board.model.values]
     lines = [f"fidelity scoreboard: error against the truth in bounds (flag '!' beyond "
              f"{threshold:g}: {BIAS_MEANING})",
              f"{'parameter':<11}{'truth':>11}" + "".join(
-                 f"{m[:22]:>40}" for m in methods),
+                 f"{m[:22]:>53}" for m in methods),
              f"{'':<11}{'':>11}" + "".join(
-                 f"{'value':>11}{'bound':>10}{'kind':>10}{'err/bd':>8}{'':>1}" for _ in methods)]
-    flagged = {m: 0 for m in methods}
+                 f"{'value':>11}{'CR':>10}{'bound':>10}{'kind':>13}{'err/bd':>8}{'':>1}"
+                 for _ in methods)]
+    flagged: dict[str, dict[str, list[str]]] = {m: {} for m in methods}
+    has_plain = "cramer_rao" in board
+    has_reason = "bias_reason" in board
     for name in board.parameter.values:
         truth = float(board["truth"].sel(parameter=name))
         row = f"{str(name):<11}" + (f"{truth:>11.4g}" if np.isfinite(truth) else f"{'-':>11}")
@@ -246,13 +307,21 @@ def format_scoreboard(board: xr.Dataset) -> str:
             cell = board.sel(parameter=name, model=m)
             value, bound = float(cell["value"]), float(cell["bound"])
             if not np.isfinite(value):
-                row += f"{'-':>11}{'':>10}{'':>10}{'':>8} "
+                row += f"{'-':>11}{'':>10}{'':>10}{'':>13}{'':>8} "
                 continue
+            plain = float(cell["cramer_rao"]) if has_plain else np.nan
             z = float(cell["error_in_bounds"])
             flag = bool(cell["bias_flag"])
-            flagged[m] += flag
-            row += (f"{value:>11.4g}{bound:>10.3g}{str(cell['bound_kind'].values):>10}"
+            if flag:
+                why = str(cell["bias_reason"].values) if has_reason else BIAS_MEANING
+                flagged[m].setdefault(why or BIAS_MEANING, []).append(str(name))
+            row += (f"{value:>11.4g}" + (f"{plain:>10.3g}" if np.isfinite(plain) else f"{'-':>10}")
+                    + f"{bound:>10.3g}{str(cell['bound_kind'].values):>13}"
                     + (f"{z:>8.1f}" if np.isfinite(z) else f"{'-':>8}") + ("!" if flag else " "))
         lines.append(row)
-    lines.append("flagged: " + ", ".join(f"{m} {n}" for m, n in flagged.items()))
+    lines.append("flagged: " + ", ".join(f"{m} {sum(map(len, r.values()))}"
+                                         for m, r in flagged.items()))
+    for m, reasons in flagged.items():
+        for why, names in reasons.items():
+            lines.append(f"  {m}: {', '.join(names)}: {why}")
     return "\n".join(lines)
