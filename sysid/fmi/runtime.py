@@ -188,7 +188,8 @@ def inspect_archive(path: str | os.PathLike, *, interfaces=("coSimulation", "mod
     Returns ``{"fmi_version", "guid", "model_name", "identifiers": {interface: identifier},
     "members": [names]}``.
     """
-    from fmpy import platform, platform_tuple, sharedLibraryExtension  # deferred: see above
+    # deferred: see above
+    from fmpy import platform as fmi2_platform, platform_tuple, sharedLibraryExtension
 
     path = Path(path)
     where = f"FMU {path}"
@@ -246,8 +247,8 @@ def inspect_archive(path: str | os.PathLike, *, interfaces=("coSimulation", "mod
                            f"expected an FMI {' or '.join(fmi_versions)} FMU")
         # FMI 3.0 calls the GUID instantiationToken and names binary folders by tuple
         guid = root.get("guid" if version == "2.0" else "instantiationToken", "")
-        if version != "2.0":
-            platform = platform_tuple
+        # binary folders: FMI 2 names them by platform (linux64), FMI 3 by tuple (x86_64-linux)
+        platform = fmi2_platform if version == "2.0" else platform_tuple
         if not guid.strip():
             raise FMUError(f"{where} is not a valid FMU: modelDescription.xml has no "
                            f"{'guid' if version == '2.0' else 'instantiationToken'}")

@@ -89,7 +89,7 @@ def statespace(model: xr.Dataset, *, pade_order: int | None = None):
                           name=str(model.attrs.get("structure", "model")))
     n, m = B.shape
     Bnd = np.where(tau == 0, B, 0.0)
-    blocks_A, blocks_B, rows_C, rows_D, extra_states = [], [], [], [], []
+    blocks_A, blocks_B, extra_states = [], [], []
     for k in range(m):
         for g, d in enumerate(np.unique(tau[:, k][tau[:, k] > 0])):
             num, den = control.pade(float(d), int(pade_order))
