@@ -6,7 +6,8 @@ four Dask tasks, one per part of :data:`sysid.pipeline.study.PARTS`: the data (c
 frequency responses), then the frequency- and the time-domain fits side by side, then the
 results (verification, comparison, export, report)::
 
-    <out>/<condition>/          the condition's study (campaign.nc, FMUs, report.html)
+    <out>/<condition>/          the condition's study (campaign.nc, FMUs, report.html; a
+                                quick condition has no FMUs or report: Condition)
     <out>/<condition>/condition.json   what ran and how it ended (the resume marker)
     <out>/<condition>/study_<part>.log the stages' tables, one log per part
     <out>/batch.nc              every condition's results on one ``condition`` dimension
@@ -32,8 +33,8 @@ first line of its message, e.g. ``IdentificationError: ...``; the stages are lib
 so that is the stage's own exception),
 so one bad condition never stops the others; a worker that dies is reported the same way.
 Resume: a condition whose folder holds a completed study with the same settings (its
-``condition.json`` says ``ok`` and ``report.html`` exists) is not recomputed; a failed or
-interrupted one is re-run, and :func:`run_study`'s per-stage cache reuses whatever it had
+``condition.json`` says ``ok`` and, unless quick, ``report.html`` exists) is not recomputed;
+a failed or interrupted one is re-run, and :func:`run_study`'s per-stage cache reuses whatever it had
 finished (e.g. the campaign).
 
 Structures: below :data:`FORWARD_FLIGHT_KT` the quasi-steady hover structure ``hover_6dof``,
@@ -81,8 +82,8 @@ from sysid.core.util import Progress, atomic_path
 from sysid.data.netcdf import read_campaign
 from sysid.flight_test.campaign import default_campaign
 from sysid.models import parameter_values
-from sysid.pipeline.study import (FORWARD_FLIGHT_KT, METHODS, PARTS, StudySettings, run_study,
-                                  structure_for)
+from sysid.pipeline.study import (FORWARD_FLIGHT_KT, METHODS, PARTS, QUICK_OMITS, StudySettings,
+                                  run_study, structure_for)
 from sysid.truth import build_fmu
 
 #: Default flight conditions, kt (the issue's list).
@@ -94,7 +95,10 @@ class Condition:
     ``quick`` flies a reduced campaign (one sweep record per axis instead of two, plus the
     3211 and 2311 multisteps) for faster checks; results are noisier than with the full
     campaign. (Shorter sweeps were tried: 45-s sweeps from 0.3 rad/s left the hover roll
-    derivatives unidentifiable.)
+    derivatives unidentifiable.) Its study is the quick one of
+    :class:`~sysid.pipeline.study.StudySettings`: both fits and the verification as in the
+    full study, without :data:`~sysid.pipeline.study.QUICK_OMITS` (no report: what a batch
+    collects is ``batch.nc``).
     """
 
     airspeed_kt: float
@@ -148,7 +152,7 @@ def load_conditions(path: str | Path) -> list[Condition]:
         speeds = [0, 20, 40, 60, 80, 100]   # kt
         seeds = [20261121, 1, 2]            # one condition per speed and seed (default one)
         noise = true                        # sensor noise and turbulence (default true)
-        quick = false                       # reduced campaign (default false)
+        quick = false                       # reduced campaign and study (default false)
 
         [structures]                        # optional: structure -> airspeed band [from, to) kt
         hover_6dof = [0, 30]
@@ -218,7 +222,7 @@ def study_settings(condition: Condition, folder: str | Path):
         campaign_file = str(campaign_file)
     return StudySettings(airspeed_kt=condition.airspeed_kt, seed=condition.seed,
                          noise=condition.noise, structure=condition.structure_name,
-                         campaign_file=campaign_file)
+                         campaign_file=campaign_file, quick=condition.quick)
 
 
 def _marker(folder: Path) -> Path:
@@ -239,7 +243,8 @@ def completed(condition: Condition, folder: str | Path) -> bool:
     except (OSError, ValueError):
         return False
     return (record.get("status") == "ok" and record.get("condition") == condition.to_dict()
-            and (folder / "report.html").exists() and (folder / "campaign.nc").exists())
+            and (condition.quick or (folder / "report.html").exists())
+            and (folder / "campaign.nc").exists())
 
 
 def run_condition(spec: dict, folder: str, fail: str | None = None) -> dict:
@@ -572,6 +577,8 @@ def combine(conditions: Sequence[Condition], records: Sequence[dict]) -> xr.Data
     ds.attrs.update(long_name="identification results per flight condition (sysid.pipeline.batch)",
                     n_conditions=len(names), n_failed=int(sum(r["status"] != "ok"
                                                               for r in records)))
+    if any(c.quick for c in conditions):
+        ds.attrs["quick_omits"] = "; ".join(QUICK_OMITS)
     return ds
 
 

@@ -73,7 +73,8 @@ from sysid.assess.verification import verification_table
 from sysid.truth import build_fmu
 
 __all__ = ["FORWARD_FLIGHT_KT", "FD_COHERENCE_MIN_HOVER", "FD_COHERENCE_MIN_FORWARD",
-           "StudySettings", "PARTS", "METHODS", "run_study", "study_tree", "structure_for"]
+           "StudySettings", "PARTS", "METHODS", "QUICK_OMITS", "run_study", "study_tree",
+           "structure_for"]
 
 #: From this airspeed (kt) up the forward-flight structure and coherence admission are used.
 FORWARD_FLIGHT_KT = 30.0
@@ -87,6 +88,16 @@ FD_COHERENCE_MIN_FORWARD = 0.4
 
 #: The identification methods of the study, as stored under ``/models/<method>``.
 METHODS = ("frequency_domain", "time_domain")
+
+#: What a quick study (``StudySettings(quick=True)``) leaves out: only what the report shows
+#: or what the batch does not collect. Both fits, their bounds and reductions, verification
+#: on the 2311 manoeuvres and the derivative comparison run as in the full study.
+QUICK_OMITS = (
+    "cross-control coherence summary of the campaign (a report figure and guideline check)",
+    "SISO and not leakage-conditioned frequency responses (the report's comparison figures)",
+    "FMU export and validation against the truth FMU",
+    "HTML report (write it afterwards with 'sysid report <folder>/campaign.nc')",
+)
 
 
 def structure_for(airspeed_kt: float) -> str:
@@ -116,6 +127,8 @@ class StudySettings:
     #: ``""`` turns it off (the paper's method); or comma-separated states. With it on, the
     #: plain estimate is kept as ``/frequency_response_no_transient`` for the report.
     transient_states: str = "auto"
+    #: A reduced study for batches of many conditions: leaves out :data:`QUICK_OMITS`.
+    quick: bool = False
 
     @property
     def fd_coherence(self) -> float:
@@ -164,8 +177,8 @@ def run_study(out_dir: str | Path, settings: StudySettings | None = None, *,
 
     ``parts`` (a subset of :data:`PARTS`) runs only those parts, each reusing what the parts
     before it stored (a part whose inputs are not stored yet computes them first). Returns
-    ``None`` when ``results`` is not among them. The stages' tables (identification,
-    verification, comparison, validation) go to ``log`` when given, else to standard output
+    ``None`` when ``results`` is not among them or the study is quick (no report). The
+    stages' tables (identification, verification, comparison, validation) go to ``log`` when given, else to standard output
     unless ``quiet``; progress lines go to ``log`` or standard error unless ``quiet``.
 
     Examples
@@ -207,10 +220,12 @@ class _Study:
         else:
             self.campaign = default_campaign(settings.airspeed_kt, noise=settings.noise,
                                              seed=settings.seed)
+        # (quick enters only when set, so that full studies keep their cache keys)
+        quick = ("quick",) if settings.quick else ()
         self.key_campaign = _key("campaign", self.campaign.to_toml(), self.fmu_path.name,
-                                 sysid.__version__)
+                                 sysid.__version__, *quick)
         self.key_fr = _key("fr", self.key_campaign, settings.sweep_maneuvers,
-                           settings.transient_states)
+                           settings.transient_states, *quick)
         # The structure enters by its text, so that editing its file re-runs the fits.
         structure = (settings.structure, structure_path(settings.structure).read_text())
         self.key_fd = _key("fd", self.key_fr, structure, settings.fd_coherence)
@@ -284,8 +299,9 @@ class _Study:
     # 1-2. Campaign (trim and linearisation included) on the truth FMU; conditioned
     #      composite responses, and the unconditioned ones for comparison.
     def data(self) -> None:
+        summaries = [] if self.settings.quick else [campaign_summary]
         self.campaign_stage("campaign", lambda: run_campaign(
-            self.campaign, quiet=self.quiet, fmu=self.fmu_path, summaries=[campaign_summary]))
+            self.campaign, quiet=self.quiet, fmu=self.fmu_path, summaries=summaries))
         self.responses()
 
     def campaign_stage(self, name: str, make: Callable[[], xr.DataTree]) -> None:
@@ -311,6 +327,8 @@ class _Study:
             states = list(composite.attrs["transient_states"])
             self.print("leakage conditioning: " + (", ".join(states) if states else "off"))
             self.print(format_coherent_ranges(composite))
+            if settings.quick:  # the report's comparisons only (QUICK_OMITS)
+                return {"frequency_response": composite}
             siso = siso_frequency_response(list(records.values()), CONTROLS, self.outputs)
             groups = {"frequency_response": composite, "frequency_response_siso": siso}
             # The paper's plain conditioned estimate, for the report's comparison; when the
@@ -381,7 +399,7 @@ class _Study:
             self.write(stale)
 
     # 5-8. Verification, comparison, export and validation, report.
-    def results(self) -> Path:
+    def results(self) -> Path | None:
         settings, out = self.settings, self.out
         self.merge_models()
 
@@ -410,6 +428,8 @@ class _Study:
 
         self.save(self.stage("domain comparison", self.path, "comparison",
                              _key("compare", self.key_models), comparison))
+        if settings.quick:  # no export, validation or report (QUICK_OMITS)
+            return None
 
         # 7. Export both models as FMUs and validate them against the truth FMU and the data.
         def validation() -> dict:
