@@ -11,11 +11,22 @@ Must show: the *default* composite responses (leakage-free conditioning on) are 
 partial coherence >= 0.6 (a pair counts when it meets 0.6 over at least half of that band;
 the median runs over the points that meet it), and the frequency-domain fit of the true
 structure (``tests/structures/coupled_hover_8state.toml``, neutral start values) lands every
-parameter within 3 Cramer-Rao bounds of the truth. Without leakage conditioning both fail
-(the tests check that too, so they can see the difference).
+parameter within 3 bounds of the truth. Without leakage conditioning both fail (the tests
+check that too, so they can see the difference). Responses measured
+(docs/notes/2026-11-24-leakage-free-by-default.md): seeds 0-7, 8 of 8 pass.
 
-Measured (docs/notes/2026-11-24-leakage-free-by-default.md): seeds 0-7, 8 of 8 pass both;
-without leakage conditioning 0 of 8 pass the fit check (18-21 of 28 within 3 bounds).
+The fit is judged on the calibrated bound, the one the fidelity scoreboard uses
+(``cramer_rao_noise``, from the spectral random error: 0.74-1.59 times the scatter over 40
+seeds, tests/test_bound_calibration.py), not on the CIFER bound, which is 4-10 times the
+scatter on this system (errors within 0.25-0.50 CIFER bounds, seeds 0-7). Measured on the
+calibrated bound, seeds 0-7 (docs/notes/2026-11-25-truth-fmu-calibration-20-seeds.md): the
+rms error is 0.67-1.40 bounds per seed (1.12 over all 224), 5 of the 8 seeds land every
+parameter within 3 bounds; seed 0 misses with M_u 3.42 and Y_ped 3.07, seed 2 with X_q 3.59
+and Y_ped 3.40, seed 6 with tau_ped 3.11. These are the tails of an unbiased estimate (every
+mean within 0.9 scatter of the truth) whose calibrated bound is optimistic for a few
+parameters (Y_ped's scatter is 1.9 bounds over these 8 seeds), not bias: those seeds are
+strict xfails of the within-3-bounds check, and every seed must keep the rms within the
+calibration goal (the bound within a factor 2 of the error).
 """
 
 from __future__ import annotations
@@ -29,13 +40,19 @@ import trust_system as ts
 from sysid.core.guidelines import BIAS_BOUNDS_MAX, COHERENCE_MIN
 from sysid.core.units import CONTROLS, STATES_6DOF
 from sysid.identify import identify_frequency_domain
+from sysid.pipeline.batch import CALIBRATION_GOAL
 from sysid.spectral.response import frequency_response
 
 BAND = (0.7, 15.0)                  #: rad/s, where the responses are judged
 MAX_DB, MAX_DEG = 0.3, 2.0          #: median error tolerated (issue 21)
 OUTPUTS = ("u", "v", "w", "p", "q", "r", "phi", "theta")
+#: Seeds whose fit lands a parameter beyond 3 calibrated bounds (module docstring): the tails
+#: of an unbiased estimate, not a bias.
+TAIL_SEEDS = {0: "M_u 3.42, Y_ped 3.07", 2: "X_q 3.59, Y_ped 3.40", 6: "tau_ped 3.11"}
 #: Seeds of the several-seed check: all 8 with SYSID_EXHAUSTIVE=1, one more otherwise.
-SEEDS = range(1, 8) if os.environ.get("SYSID_EXHAUSTIVE") == "1" else (1,)
+SEEDS = [pytest.param(s, marks=pytest.mark.xfail(
+    strict=True, reason=f"beyond 3 calibrated bounds: {TAIL_SEEDS[s]}")) if s in TAIL_SEEDS
+    else s for s in (range(1, 8) if os.environ.get("SYSID_EXHAUSTIVE") == "1" else (1,))]
 
 
 def pair_errors(fr) -> dict[str, tuple[float, float, int]]:
@@ -64,12 +81,27 @@ def failing(errors) -> dict:
 
 
 def fit_errors_in_bounds(fr) -> tuple[dict[str, float], object]:
-    """The true structure fitted from its neutral TOML values: ``name -> |error| / CR``."""
+    """The true structure fitted from its neutral TOML values: ``name -> |error| / bound``
+    with the calibrated bound (``cramer_rao_noise``, the fidelity scoreboard's)."""
     st = ts.structure()
     result = identify_frequency_domain(fr, st, reduce=False)
     truth = ts.true_theta(st)
-    z = np.abs(result.theta - truth) / result.statistics.cramer_rao
-    return dict(zip(result.structure.free_names, z)), result
+    names = list(result.structure.free_names)
+    bound = result.model["cramer_rao_noise"].sel(parameter=names).values
+    assert np.all(np.isfinite(bound) & (bound > 0)), dict(zip(names, bound))
+    z = np.abs(result.theta - truth) / bound
+    return dict(zip(names, z)), result
+
+
+def rms(z: dict[str, float]) -> float:
+    return float(np.sqrt(np.mean(np.square(list(z.values())))))
+
+
+@pytest.fixture(scope="module")
+def fitted(flown):
+    """Seed 0's fit of the true structure (default start) and its errors in bounds."""
+    _, fr = flown
+    return fit_errors_in_bounds(fr)
 
 
 @pytest.fixture(scope="module")
@@ -101,14 +133,23 @@ def test_default_responses_are_leakage_free_and_match_the_analytic_plant(flown):
     assert failing(plain_errors), plain_errors
 
 
-def test_fit_of_the_true_structure_from_neutral_starts_lands_within_3_bounds(flown):
+def test_fit_of_the_true_structure_from_neutral_starts_is_unbiased_in_calibrated_bounds(
+        fitted):
     """Default start (no truth available): the equation error of the leakage-free responses,
-    from the structure's neutral values."""
-    _, fr = flown
-    z, result = fit_errors_in_bounds(fr)
-    print({k: round(float(v), 2) for k, v in z.items()}, f"J_ave {result.J_ave:.2f}")
+    from the structure's neutral values. The errors in calibrated bounds have an rms within
+    the calibration goal (measured 1.40 on seed 0)."""
+    z, result = fitted
+    print({k: round(float(v), 2) for k, v in z.items()}, f"J_ave {result.J_ave:.2f}",
+          f"rms {rms(z):.2f}")
     assert result.start == "equation_error"
     assert len(z) == 28
+    assert rms(z) <= CALIBRATION_GOAL[1], z
+
+
+@pytest.mark.xfail(strict=True, reason=f"seed 0: {TAIL_SEEDS[0]} calibrated bounds "
+                                       "(module docstring)")
+def test_fit_of_the_true_structure_from_neutral_starts_lands_within_3_bounds(fitted):
+    z, _ = fitted
     assert max(z.values()) <= BIAS_BOUNDS_MAX, {k: v for k, v in z.items() if v > 3}
 
 
@@ -135,11 +176,12 @@ def test_several_seeds_default_responses_and_fit(seed):
     errors = pair_errors(fr)
     assert len(errors) >= 12 and not failing(errors), failing(errors)
     z, _ = fit_errors_in_bounds(fr)
-    assert max(z.values()) <= BIAS_BOUNDS_MAX, {k: v for k, v in z.items() if v > 3}
     # without leakage conditioning the same fit is biased beyond its bounds
     plain = frequency_response(records, CONTROLS, STATES_6DOF, transient_states=())
     z_plain, _ = fit_errors_in_bounds(plain)
     assert max(z_plain.values()) > BIAS_BOUNDS_MAX
+    assert rms(z) <= CALIBRATION_GOAL[1], z
+    assert max(z.values()) <= BIAS_BOUNDS_MAX, {k: v for k, v in z.items() if v > 3}
 
 
 def test_time_domain_start_comes_from_the_leakage_free_responses(flown):
