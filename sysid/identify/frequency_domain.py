@@ -46,12 +46,14 @@ with each pair's fitted points, in frequency order, as one record of two outputs
 magnitude and phase residuals): ``B = sum_pairs sum_i sum_j g_i^T R(i - j) g_j`` with ``R``
 the residual correlation over neighbouring points pooled over the pairs, Bartlett-weighted.
 It takes the residual level from the fit and counts neighbouring points (interpolated from
-overlapping windows) as correlated; it is the bound the fidelity scoreboard and the Monte
-Carlo calibration use (docs/methods.md, "Accuracy").
+overlapping windows) as correlated. A structure's misfit repeats from one noise seed to the
+next, so where it dominates the residuals this bound measures the misfit, not the scatter.
 
 Noise bound (``cramer_rao_noise``, :func:`random_error_bounds`): the same sandwich with the
 residual covariance taken from the spectral random error of the measured response instead of
-the residuals, so it carries the measurement noise only, not the model's misfit.
+the residuals, so it carries the measurement noise only, not the model's misfit; the bound
+that matches the seed-to-seed scatter, which the fidelity scoreboard and the Monte Carlo
+calibration judge the errors on (docs/methods.md, "Accuracy").
 
 Start values (paper: results depend on them; here they must not): from a start model
 Dataset (e.g. the truth model's quasi-steady linearisation) when given, otherwise from a
