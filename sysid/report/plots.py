@@ -92,12 +92,11 @@ def png_bytes(fig: Figure) -> bytes:
 def render_png(builder, args: tuple) -> bytes:
     """PNG bytes of ``builder(*args)``, one of this module's figure functions.
 
-    Module-level so that the report can hand it, with plain data, to worker processes.
+    Module-level so that the report can hand it, with plain data, to worker processes. The
+    figure is left to the garbage collector: clearing it first (every axis reset) took a
+    quarter of a Bode figure's time for 7 MiB less peak over 25 figures.
     """
-    fig = builder(*args)
-    data = png_bytes(fig)
-    fig.clear()
-    return data
+    return png_bytes(builder(*args))
 
 
 def aligned_phase(phase_deg: np.ndarray, reference_deg: np.ndarray | None = None) -> np.ndarray:
