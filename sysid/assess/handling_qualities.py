@@ -34,7 +34,11 @@ propagation, errors at different frequencies independent).
 Sources (:func:`handling_qualities`): the composite data (the measured attitude, or the rate
 integrated, ``H/(j omega)``, where the attitude is not measured), the truth's full
 linearisation (``/linearization_full``: rotor, inflow and actuators, the truth), its
-quasi-steady reduction (``/linearization``) and every identified model (``/models/<method>``).
+quasi-steady reduction (``/linearization``), every identified model (``/models/<method>``) and,
+when given, the truth FMU's describing function at the amplitude flown
+(:func:`describing_function`: pure control sinusoids with the campaign's holds, first
+harmonics, the other holds' linear share taken out), a truth where the linearisation is not
+the helicopter flown; on its few frequencies only the phase bandwidth is defined.
 The phase of each is unwrapped and put on the branch above, fixed over the data's coherent
 band; the crossings are searched from the band's lowest frequency upwards.
 
@@ -69,6 +73,7 @@ References
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 
@@ -78,8 +83,10 @@ import xarray as xr
 from sysid.assess.margins import crossings, interp_log
 from sysid.core.errors import InputDataError
 from sysid.core.guidelines import COHERENCE_MIN
+from sysid.core.units import CONTROLS
 from sysid.core.util import Progress
 from sysid.data.campaign import CampaignData
+from sysid.flight_test.campaign import Campaign, Maneuver, run_campaign
 from sysid.identify.frequency_domain import select_fit_data
 from sysid.identify.transfer_function import RATE_OF, TRUTH_SOURCES, pair_response
 from sysid.models import frequency_response
@@ -87,7 +94,9 @@ from sysid.models import frequency_response
 __all__ = ["AXES", "RESPONSE_TYPES", "MTES", "ADS33_BOUNDARIES", "ADS33_SOURCE",
            "bandwidth_phase_delay", "boundary_bandwidth", "ads33_level", "attitude_responses",
            "handling_qualities", "sample_hold_interval", "zero_order_hold",
-           "carries_sample_hold", "ADS33_CONFIRMED", "OMEGA_REF_DEFAULT", "MODEL_GRID"]
+           "carries_sample_hold", "ADS33_CONFIRMED", "OMEGA_REF_DEFAULT", "MODEL_GRID",
+           "describing_function", "describing_grid", "sweep_amplitude", "DF_SETTLE_CYCLES",
+           "DF_CYCLES", "DF_SPAN"]
 
 #: Attitude response of each axis: (attitude, control).
 AXES = {"pitch": ("theta", "lon"), "roll": ("phi", "lat"), "yaw": ("psi", "ped")}
@@ -100,6 +109,13 @@ MTES = ("tracking", "other")
 OMEGA_REF_DEFAULT = 1.0
 #: Grid of the model responses (rad/s): 2000 log-spaced points over 0.05-100 rad/s.
 MODEL_GRID = (0.05, 100.0, 2000)
+#: Describing functions (:func:`describing_function`): periods discarded while the closed loop
+#: settles after the sine starts, and whole periods analysed.
+DF_SETTLE_CYCLES = 2
+DF_CYCLES = 3
+#: Default describing-function grid (:func:`describing_grid`) around a bandwidth omega_BW:
+#: ``n`` log-spaced points from ``lo omega_BW`` to ``hi omega_BW``, ``(lo, hi, n)``.
+DF_SPAN = (0.65, 1.65, 7)
 #: Degrees per radian as ADS-33E-PRF writes the phase-delay formula.
 DEG_PER_RAD = 57.3
 
@@ -408,10 +424,169 @@ def sample_hold_interval(data: CampaignData) -> float | None:
     return float(dt) if dt is not None and float(dt) > 0 else None
 
 
+# --------------------------------------------------------------------------------------------
+# the truth at the flown amplitude
+
+
+def sweep_amplitude(maneuver: Maneuver, omega) -> np.ndarray:
+    """Pilot amplitude (% of travel) of a sweep manoeuvre at instantaneous frequency ``omega``
+    (rad/s): the schedule of :func:`sysid.signals.inputs.frequency_sweep`,
+    ``A (f + (1 - f) x^shape)`` with ``x`` the position of ``omega`` in log frequency from
+    ``omega_min`` (0) to ``full_amplitude_omega`` (1), clipped to [0, 1]."""
+    m = maneuver
+    w = np.asarray(omega, float)
+    f, w_full = float(m.low_frequency_fraction), float(m.full_amplitude_omega)
+    if w_full <= m.omega_min or f == 1.0:
+        return np.full(w.shape, float(m.amplitude))
+    x = np.log(np.clip(w, m.omega_min, w_full) / m.omega_min) / math.log(w_full / m.omega_min)
+    return m.amplitude * (f + (1.0 - f) * x ** m.amplitude_shape)
+
+
+def describing_grid(bandwidth: float) -> np.ndarray:
+    """Describing-function frequencies (rad/s) around a bandwidth (rad/s): :data:`DF_SPAN`.
+    The phase between them is interpolated linearly in log omega (error 0.1 % of bandwidth on
+    the hover's heading response)."""
+    if not (math.isfinite(bandwidth) and bandwidth > 0):
+        raise InputDataError(f"describing_grid: bandwidth {bandwidth!r} rad/s: expected > 0")
+    lo, hi, n = DF_SPAN
+    return np.geomspace(lo * bandwidth, hi * bandwidth, int(n))
+
+
+def describing_function(campaign: Campaign, *, omega, axis: str = "yaw", amplitude=None,
+                        settle_cycles: int = DF_SETTLE_CYCLES, cycles: int = DF_CYCLES,
+                        fmu=None, quiet: bool = True) -> xr.Dataset:
+    """Describing function of the truth FMU's attitude response on one axis: its first-harmonic
+    response to pure control sinusoids at the amplitude the campaign's sweep flies.
+
+    A quasi-linear truth where the linearisation is not the helicopter flown (the hover's
+    quadratic fin forces make the yaw damping grow with the yaw rate; docs/methods.md). For
+    each ``omega`` the FMU flies ``A(omega) sin(omega t)`` on the axis's control with the
+    campaign's holds (the excited axis's weaker hold, the same gains), in calm air, without
+    sensor noise or off-axis pilot activity. After ``settle_cycles`` periods, over ``cycles``
+    whole periods, ``y(t) = a + b t + c cos(omega t) + d sin(omega t)`` is fitted by least
+    squares to the attitude and to every applied control (the trend takes the heading's
+    drift), first harmonics ``Y = c_y - j d_y`` and ``U_c``, and
+
+        H(omega) = (Y / Z(j omega) - sum_{c != u} G_c(j omega) U_c) / U_u     (deg per %)
+
+    with the campaign's zero-order hold ``Z`` (:func:`zero_order_hold`) divided out, as from
+    the data, and the share of the other holds' controls taken out through the full
+    linearisation's ``G_c`` (they move at omega too, 9-19 % of the heading's harmonic in
+    hover; the data's conditioning on every control does the same). At small amplitude it
+    is the linearisation's response (tests/test_handling_qualities.py).
+
+    Parameters
+    ----------
+    campaign : Campaign
+        Flight condition, sample rate, holds and the sweep whose amplitude is flown.
+    omega : array
+        Frequencies, rad/s (ascending).
+    axis : str
+        One of :data:`AXES`.
+    amplitude : float or array, optional
+        Pilot amplitude (% of travel) per frequency; default the campaign's first sweep on
+        the axis's control at ``omega`` (:func:`sweep_amplitude`).
+    settle_cycles, cycles : int
+        Periods discarded while the closed loop settles, periods analysed.
+
+    Returns
+    -------
+    xr.Dataset
+        On ``frequency`` (rad/s): ``H`` (complex, deg/%), ``pilot_amplitude``,
+        ``control_amplitude`` (%), ``attitude_amplitude`` (deg), ``rate_amplitude`` (deg/s,
+        first harmonic of the body rate), ``distortion`` (rms residual of the attitude fit
+        over its first-harmonic amplitude) and ``off_axis_share`` (``|sum G_c U_c|`` over
+        ``|Y / Z|``). Attributes ``axis``, ``pair``, ``sample_hold_removed_s``, ``campaign``,
+        ``settle_cycles``, ``cycles``.
+
+    Examples
+    --------
+    >>> df = describing_function(default_campaign(0.0), omega=np.geomspace(0.2, 0.5, 7))
+    >>> hq = handling_qualities(data, describing=[df])   # source "describing_function"
+    """
+    if axis not in AXES:
+        raise InputDataError(f"describing_function: axis {axis!r}: expected one of {list(AXES)}")
+    attitude, control = AXES[axis]
+    w = np.atleast_1d(np.asarray(omega, float))
+    if w.ndim != 1 or not np.all(w > 0) or np.any(np.diff(w) <= 0):
+        raise InputDataError(f"describing_function: omega must be ascending and > 0 rad/s, got "
+                             f"{w}")
+    if int(settle_cycles) < 0 or int(cycles) < 1:
+        raise InputDataError(f"describing_function: need settle_cycles >= 0 and cycles >= 1, "
+                             f"got {settle_cycles} and {cycles}")
+    if amplitude is None:
+        sweeps = [m for m in campaign.maneuvers if m.kind == "sweep" and m.axis == control]
+        if not sweeps:
+            raise InputDataError(f"describing_function: campaign {campaign.name!r} has no "
+                                 f"sweep on {control!r} to take the amplitude from; pass "
+                                 "amplitude=")
+        pilot = sweep_amplitude(sweeps[0], w)
+    else:
+        pilot = np.broadcast_to(np.asarray(amplitude, float), w.shape).copy()
+    if not np.all(pilot > 0):
+        raise InputDataError(f"describing_function: amplitudes must be > 0 %, got {pilot}")
+    periods = 2.0 * math.pi / w
+    lead_in = 1.0
+    flown = dataclasses.replace(
+        campaign, noise={}, turbulence=0.0,
+        stabilisation=dataclasses.replace(campaign.stabilisation, secondary_perturbation=0.0),
+        maneuvers=[Maneuver(f"sine_{control}_{k}", "sine", control, amplitude=float(a),
+                            omega_min=float(x), omega_max=float(x) * 1.001,
+                            duration=(int(settle_cycles) + int(cycles)) * float(T),
+                            lead_in=lead_in, lead_out=0.5)
+                   for k, (x, a, T) in enumerate(zip(w, pilot, periods))])
+    tree = run_campaign(flown, fmu=fmu, quiet=quiet)
+    dt = 1.0 / flown.sample_rate
+    rate = RATE_OF[attitude]
+    linear = tree["linearization_full"].to_dataset()
+    out = {k: np.full(w.shape, np.nan) for k in ("control_amplitude", "attitude_amplitude",
+                                                  "rate_amplitude", "distortion",
+                                                  "off_axis_share")}
+    H = np.full(w.shape, np.nan + 0j)
+    for k, (x, T, m) in enumerate(zip(w, periods, flown.maneuvers)):
+        ds = tree[f"maneuvers/{m.name}"].to_dataset()
+        t = ds["time"].values - lead_in
+        keep = (t >= settle_cycles * T - 1e-9) & (t < (settle_cycles + cycles) * T - 1e-9)
+        tk = t[keep]
+        basis = np.column_stack([np.ones_like(tk), tk - tk.mean(), np.cos(x * tk),
+                                 np.sin(x * tk)])
+        first = {}
+        for name in (attitude, rate) + CONTROLS:
+            y = ds[name].values[keep]
+            coef, *_ = np.linalg.lstsq(basis, y, rcond=None)
+            first[name] = complex(coef[2], -coef[3])
+            if name == attitude:
+                resid = y - basis @ coef
+                out["distortion"][k] = np.sqrt(np.mean(resid**2)) / abs(first[name])
+        # the other holds move the other controls at omega too: their linear share of the
+        # attitude is taken out (the data's conditioning on every control does the same)
+        G = frequency_response(linear, np.array([x]))
+        others = sum(complex(G.sel(output=attitude, input=c).values[0]) * first[c]
+                     for c in CONTROLS if c != control)
+        out["off_axis_share"][k] = abs(others) / abs(first[attitude] / zero_order_hold(x, dt))
+        H[k] = (first[attitude] / zero_order_hold(x, dt) - others) / first[control]
+        out["control_amplitude"][k] = abs(first[control])
+        out["attitude_amplitude"][k] = abs(first[attitude])
+        out["rate_amplitude"][k] = abs(first[rate])
+    units = {"control_amplitude": "%", "attitude_amplitude": "deg", "rate_amplitude": "deg/s",
+             "distortion": "1", "off_axis_share": "1"}
+    result = xr.Dataset(
+        {"H": ("frequency", H, {"units": "deg/%", "long_name": f"describing function "
+                                                              f"{attitude}/{control}"}),
+         "pilot_amplitude": ("frequency", pilot, {"units": "%"}),
+         **{k: ("frequency", v, {"units": units[k]}) for k, v in out.items()}},
+        coords={"frequency": ("frequency", w, {"units": "rad/s"})},
+        attrs={"axis": axis, "pair": f"{attitude}/{control}",
+               "sample_hold_removed_s": float(dt), "campaign": flown.name,
+               "settle_cycles": int(settle_cycles), "cycles": int(cycles)})
+    return result
+
+
 def handling_qualities(data: CampaignData, *, response_type: str | Mapping[str, str] = "rate",
                        sources: Sequence[str] | None = None,
                        sample_hold: float | str | None = "auto",
-                       coherence_min: float = COHERENCE_MIN, quiet: bool = True,
+                       coherence_min: float = COHERENCE_MIN,
+                       describing: Sequence[xr.Dataset] = (), quiet: bool = True,
                        progress: Progress | None = None) -> xr.Dataset:
     """ADS-33E-PRF bandwidth, phase delay and Level of the pitch, roll and yaw attitude
     responses of a campaign's data, truth linearisations and identified models.
@@ -434,6 +609,9 @@ def handling_qualities(data: CampaignData, *, response_type: str | Mapping[str, 
         The campaign's zero-order hold (s), divided out of the data and of the models fitted
         to them so that every source describes the continuous helicopter (module
         docstring); "auto": :func:`sample_hold_interval`; None: none.
+    describing : sequence of xr.Dataset
+        Describing functions of the truth (:func:`describing_function`, one axis each),
+        assessed as the source ``describing_function``: the truth at the amplitude flown.
 
     Returns
     -------
@@ -463,6 +641,14 @@ def handling_qualities(data: CampaignData, *, response_type: str | Mapping[str, 
     hold = sample_hold_interval(data) if sample_hold == "auto" else sample_hold
     responses = attitude_responses(data, sources=sources, coherence_min=coherence_min,
                                    sample_hold=hold)
+    for df in describing:
+        axis = df.attrs.get("axis")
+        if axis not in AXES or "H" not in df:
+            raise InputDataError(f"describing function for axis {axis!r}: expected a "
+                                 f"describing_function() result on one of {list(AXES)}")
+        responses[axis]["responses"]["describing_function"] = (
+            df["frequency"].values, df["H"].values, None, None)
+        responses[axis]["hold_removed"].append("describing_function")
     names: list[str] = []
     for entry in responses.values():
         names += [n for n in entry["responses"] if n not in names]

@@ -2,13 +2,17 @@
 
 ::
 
-    sysid handling-qualities campaign.nc [--response-type rate|attitude] [--no-store]
+    sysid handling-qualities campaign.nc [--response-type rate|attitude]
+                             [--describing-function yaw ...] [--no-store]
 
 Runs :func:`sysid.assess.handling_qualities.handling_qualities` (pitch, roll and yaw attitude
 responses of the data, the truth linearisations and every identified model) and
 :func:`sysid.assess.margins.hold_margins` (crossover and margins of each stabilisation hold
 on the truth's full linearisation, when the campaign was flown with holds), prints both and
-stores them as ``/handling_qualities`` and ``/hold_margins``.
+stores them as ``/handling_qualities`` and ``/hold_margins``. ``--describing-function AXIS``
+flies the truth FMU with pure control sinusoids at the campaign's sweep amplitude around the
+truth's bandwidth (:func:`sysid.assess.handling_qualities.describing_function`) and adds the
+source ``describing_function``: the truth at the amplitude flown.
 """
 
 from __future__ import annotations
@@ -17,8 +21,9 @@ import argparse
 
 import numpy as np
 
-from sysid.assess.handling_qualities import RESPONSE_TYPES, handling_qualities
-from sysid.assess.margins import hold_margins
+from sysid.assess.handling_qualities import (AXES, RESPONSE_TYPES, describing_function,
+                                             describing_grid, handling_qualities)
+from sysid.assess.margins import flown_campaign, hold_margins
 from sysid.core.errors import InputDataError
 from sysid.core.util import Progress
 from sysid.data.campaign import CampaignData
@@ -39,6 +44,11 @@ def register(subparsers) -> None:
     p.add_argument("--response-type", choices=RESPONSE_TYPES, default="rate",
                    help="which bandwidth governs: rate (bare airframe, default) or attitude "
                         "(ACAH)")
+    p.add_argument("--describing-function", action="append", choices=list(AXES), default=[],
+                   metavar="AXIS",
+                   help="also the truth FMU's describing function on this axis (pitch, roll, "
+                        "yaw; repeatable): pure sinusoids at the sweep's amplitude around the "
+                        "linearisation's bandwidth, source 'describing_function'")
     p.add_argument("--no-store", action="store_true", help="print only")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
@@ -54,6 +64,18 @@ def run(args: argparse.Namespace) -> int:
     progress = Progress(quiet=args.quiet)
     data = CampaignData.read(args.campaign)
     hq = handling_qualities(data, response_type=args.response_type, progress=progress)
+    if args.describing_function:
+        campaign = flown_campaign(data)
+        dfs = []
+        for axis in dict.fromkeys(args.describing_function):
+            row = hq.sel(axis=axis, source="linearization_full" if "linearization_full"
+                         in hq.source.values else "data")
+            with progress.stage(f"describing function, {axis}"):
+                dfs.append(describing_function(
+                    campaign, omega=describing_grid(float(row.bandwidth_phase)), axis=axis,
+                    quiet=args.quiet))
+        hq = handling_qualities(data, response_type=args.response_type, describing=dfs,
+                                progress=progress)
     print(f"{'axis':<6}{'source':<20}{'omega_180':>10}{'BW phase':>10}{'BW gain':>10}"
           f"{'BW':>18}{'tau_p [ms]':>16}{'gamma2 2w180':>13}{'Level trk/oth':>15}")
     for axis in hq["axis"].values:

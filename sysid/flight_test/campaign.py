@@ -65,7 +65,7 @@ DEFAULT_NOISE = {
     "ax": 0.1, "ay": 0.1, "az": 0.1,
 }
 
-KINDS = ("sweep", "3211", "2311", "doublet", "multisine")
+KINDS = ("sweep", "3211", "2311", "doublet", "multisine", "sine")
 
 #: Amplitude factors of the default campaign against airspeed, ``{axis: ((kt, factor), ...)}``,
 #: interpolated linearly and held beyond the last point
@@ -97,7 +97,8 @@ class Maneuver:
     """One manoeuvre. ``axis`` is a control name (``lon lat col ped``).
 
     Amplitudes are % of travel; frequencies rad/s; times s. Sweep fields apply to sweeps and
-    multisines, ``base_width``/``sign`` to multisteps.
+    multisines, ``base_width``/``sign`` to multisteps; a ``sine`` is ``amplitude sin(omega_min
+    t)`` for ``duration`` s (describing functions).
     """
 
     name: str
@@ -127,6 +128,8 @@ class Maneuver:
         if self.kind in ("sweep", "multisine") and not 0 < self.omega_min < self.omega_max:
             raise InputDataError(
                 f"manoeuvre {self.name!r}: need 0 < omega_min < omega_max (rad/s)")
+        if self.kind == "sine" and not self.omega_min > 0:
+            raise InputDataError(f"manoeuvre {self.name!r}: a sine needs omega_min > 0 (rad/s)")
 
 
 @dataclass
@@ -333,6 +336,36 @@ def linear_regime_campaign(airspeed_kt: float = 0.0, *, seed: int = 20261121,
                                turbulence=0.0)
 
 
+#: Pedal sweeps of :func:`handling_qualities_campaign`: repeats, record length (s) and amplitude
+#: relative to the default campaign's.
+HQ_PEDAL_SWEEPS = {"repeats": 4, "duration": 300.0, "scale": 1.0}
+
+
+def handling_qualities_campaign(airspeed_kt: float = 0.0, *, seed: int = 20261121,
+                                noise: bool = True) -> Campaign:
+    """The default campaign's sweeps flown for the handling-qualities figures: calm air
+    (sensor noise kept) and the pedal sweeps as :data:`HQ_PEDAL_SWEEPS` (four 300-s records).
+
+    Why (measured in hover on the truth FMU, docs/notes/2026-11-25-hq-yaw-pedal-sweeps.md):
+    the heading bandwidth (about 0.3 rad/s) lies in the pedal sweep's low-frequency part,
+    which a 150-s record passes in half a cycle (11 s between 0.2 and 0.5 rad/s); there the
+    conditioned psi/ped of the nonlinear truth came out 9-14 % above the linearisation's
+    bandwidth in calm air, where its describing function at the amplitude flown is 2 % above.
+    Four 300-s records (1.6 cycles each) bring the data to within 4 % of the linearisation
+    and 2 % of the describing function on seeds 1-3 and 20261121. Turbulence fed back by the
+    heading hold spreads the default campaign's yaw bandwidth over -3 to +14 %.
+    """
+    base = default_campaign(airspeed_kt, noise=noise, seed=seed).select("sweep_*")
+    pedal = next(m for m in base.maneuvers if m.axis == "ped")
+    spec = HQ_PEDAL_SWEEPS
+    pedals = [dataclasses.replace(pedal, name=f"sweep_ped_{k + 1}", duration=spec["duration"],
+                                  amplitude=pedal.amplitude * spec["scale"])
+              for k in range(int(spec["repeats"]))]
+    sweeps = [m for m in base.maneuvers if m.axis != "ped"] + pedals
+    return dataclasses.replace(base, name=f"{base.name}_handling_qualities", maneuvers=sweeps,
+                               turbulence=0.0)
+
+
 # ---------------------------------------------------------------------------------------
 # Excitation signals
 # ---------------------------------------------------------------------------------------
@@ -347,6 +380,11 @@ def excitation(maneuver: Maneuver, dt: float, seed: int) -> np.ndarray:
                                     low_frequency_fraction=m.low_frequency_fraction,
                                     full_amplitude_omega=m.full_amplitude_omega or None,
                                     amplitude_shape=m.amplitude_shape)
+    elif m.kind == "sine":  # starts from trim at zero phase, back to trim after ``duration``
+        n_in, n_on, n_out = (int(round(x / dt)) for x in (m.lead_in, m.duration, m.lead_out))
+        out = np.zeros(n_in + n_on + n_out + 1)
+        out[n_in:n_in + n_on] = m.amplitude * np.sin(m.omega_min * dt * np.arange(n_on))
+        return out
     elif m.kind in ("3211", "2311", "doublet"):
         ds = inputs.multistep(m.kind, m.axis, base_width=m.base_width, amplitude=m.amplitude,
                               sign=m.sign, dt=dt, lead_in=m.lead_in, lead_out=m.lead_out)
