@@ -27,6 +27,7 @@ import xarray as xr
 from sysid.assess.handling_qualities import (AXES, bandwidth_phase_delay, describing_function,
                                              handling_qualities)
 from sysid.assess.margins import hold_margins
+from sysid.cli import main
 from sysid.core.units import CONTROLS, STATES_6DOF
 from sysid.data.campaign import CampaignData
 from sysid.flight_test.campaign import handling_qualities_campaign, run_campaign
@@ -152,3 +153,18 @@ def test_yaw_bandwidth_matches_the_truth_at_the_amplitude_flown(seed, truth_fmu,
                - float(hq["tau_p"].sel(source="linearization_full"))) <= 0.010, seed
     # the describing function is the truth at the amplitude flown: the heading swings
     assert float(yaw_describing["rate_amplitude"].max()) > 20.0  # deg/s
+
+
+def test_cli_adds_the_describing_function_as_a_source(hover_study, capsys):
+    """``sysid handling-qualities --describing-function yaw`` on the study's campaign file:
+    a ``describing_function`` row whose heading bandwidth is within 5 % of the linearisation's
+    (the truth at the default pedal amplitude is 2 % above it); nothing stored."""
+    path = hover_study["dir"] / "campaign.nc"
+    before = path.stat().st_mtime_ns
+    assert main(["handling-qualities", str(path), "--describing-function", "yaw", "--no-store",
+                 "--quiet"]) == 0
+    rows = {tuple(line.split()[:2]): line.split() for line in capsys.readouterr().out.splitlines()
+            if line.startswith("yaw ")}
+    df, truth = rows[("yaw", "describing_function")], rows[("yaw", "linearization_full")]
+    assert abs(float(df[3]) / float(truth[3]) - 1) <= 0.05  # BW phase column
+    assert path.stat().st_mtime_ns == before
