@@ -22,10 +22,12 @@ import xarray as xr
 from sysid.assess.handling_qualities import (ADS33_BOUNDARIES, ADS33_CONFIRMED, ADS33_SOURCE,
                                              MTES, ads33_level, bandwidth_phase_delay,
                                              boundary_bandwidth, carries_sample_hold,
+                                             describing_function, sweep_amplitude,
                                              zero_order_hold)
 from sysid.assess.margins import crossings, linear_replay
 from sysid.data.campaign import CampaignData
-from sysid.flight_test.campaign import Maneuver, default_campaign, run_campaign
+from sysid.flight_test.campaign import Maneuver, default_campaign, excitation, run_campaign
+from sysid.signals import inputs
 
 # -- Level boundaries -------------------------------------------------------------------------
 
@@ -201,3 +203,42 @@ def test_a_small_sweep_replayed_through_the_linearisation_matches_the_fmu():
         np.testing.assert_allclose(twice[c].values, out[c].values, rtol=0, atol=1e-9 * rms)
     assert replay.attrs["linear_replay"] == "linearization_full"
     assert "frequency_response" not in replay.children
+
+
+# -- the describing function's inputs -----------------------------------------------------------
+
+
+def test_sweep_amplitude_is_the_envelope_of_the_flown_sweep():
+    """The amplitude the describing function flies at omega is the envelope of the campaign's
+    pedal sweep where its instantaneous frequency is omega: every peak of the generated signal
+    between 0.2 and 3 rad/s is the amplitude at its instantaneous frequency, to 2 % (1.5 % at
+    0.26 rad/s, where the amplitude rises fast within a half period and moves the peak)."""
+    campaign = default_campaign(0.0)
+    sweep = next(m for m in campaign.maneuvers if m.axis == "ped" and m.kind == "sweep")
+    dt = 1.0 / campaign.sample_rate
+    x = excitation(sweep, dt, seed=0)
+    ds = inputs.frequency_sweep("ped", omega_min=sweep.omega_min, omega_max=sweep.omega_max,
+                                duration=sweep.duration, dt=dt,
+                                long_period_cycles=sweep.long_period_cycles)
+    t = np.arange(int(round((ds.attrs["t_dwell"] + ds.attrs["t_exp"]) / dt))) * dt
+    omega_t = np.gradient(inputs.sweep_phase(
+        t, omega_min=sweep.omega_min, omega_max=sweep.omega_max, t_dwell=ds.attrs["t_dwell"],
+        t_exp=ds.attrs["t_exp"], C1=4.0, C2=0.0187), dt)
+    a = np.abs(x[int(round(sweep.lead_in / dt)):][:t.size])
+    peaks = np.flatnonzero((a[1:-1] > a[:-2]) & (a[1:-1] >= a[2:])) + 1
+    peaks = peaks[(omega_t[peaks] >= 0.2) & (omega_t[peaks] <= 3.0)]
+    assert peaks.size > 5
+    np.testing.assert_allclose(sweep_amplitude(sweep, omega_t[peaks]), a[peaks], rtol=0.02)
+    assert float(sweep_amplitude(sweep, 5.0)) == sweep.amplitude
+
+
+def test_describing_function_refuses_what_it_cannot_fly():
+    campaign = default_campaign(0.0)
+    with pytest.raises(Exception, match="axis 'heave'"):
+        describing_function(campaign, omega=[0.3], axis="heave")
+    with pytest.raises(Exception, match="ascending"):
+        describing_function(campaign, omega=[0.5, 0.3])
+    with pytest.raises(Exception, match="no sweep on 'ped'"):
+        describing_function(campaign.select("3211_*"), omega=[0.3])
+    with pytest.raises(Exception, match="a sine needs omega_min"):
+        Maneuver("s", "sine", "ped", omega_min=0.0).validate()
