@@ -493,7 +493,12 @@ class OutputErrorModel:
         XV = np.hstack([x, V])
         a_pos = [j for j, k in enumerate(self.kind) if k[0] == "A"]
         if a_pos:
-            W[:, :, a_pos] = np.einsum("pij,kj->kip", disc["dA"], XV, optimize=True)
+            # dA[p] [x; v] for every sample and A entry: one (N, n+G) x (n+G, P_A n) product
+            dA = disc["dA"]
+            at = (slice(a_pos[0], a_pos[-1] + 1) if a_pos[-1] - a_pos[0] + 1 == len(a_pos)
+                  else a_pos)  # a slice writes twice as fast as a list of columns
+            W[:, :, at] = (XV @ dA.reshape(-1, dA.shape[2]).T).reshape(
+                N, len(a_pos), n).transpose(0, 2, 1)
         extra = []  # C / D parameters act on the output equation
         for j, kind in enumerate(self.kind):
             if kind[0] == "B":
@@ -505,7 +510,8 @@ class OutputErrorModel:
             elif kind[0] in "CD":
                 extra.append((j, kind))
         Sx = propagate(disc["Phi"], W, block=8) if P else np.zeros((N, n, 0))
-        S = np.einsum("oj,kjp->kop", Cf, Sx, optimize=True)
+        # C-contiguous (N, p, P), so that the caller's (N p, P) view is not a copy
+        S = np.matmul(Cf, Sx)
         for j, (kind, o, c) in extra:
             hit = np.flatnonzero(self.out_idx == o)
             if len(hit):
