@@ -29,7 +29,8 @@ def register(subparsers) -> None:
     p.add_argument("--workers", type=int, default=2,
                    help="worker processes of the local cluster (default 2)")
     p.add_argument("--quick", action="store_true",
-                   help="reduced campaign per condition (fast check; noisier results)")
+                   help="reduced campaign and study per condition (fast check; noisier "
+                        "results; no per-condition report, FMUs or validation)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
