@@ -2,7 +2,9 @@
 
 ``truth_fmu`` builds the truth helicopter FMU once per test session (cached by source hash,
 so later sessions reuse it) and ``hover_trim`` trims it in hover. Tests that need them are
-marked ``@pytest.mark.fmu``.
+marked ``@pytest.mark.fmu``. The expensive results several modules read are made once per
+session here: ``hover_study`` (the README's study on the truth FMU) and
+``known_system_chain`` (the flight-data chain on a known linear system).
 """
 
 import pytest
@@ -39,3 +41,18 @@ def hover_study(tmp_path_factory, truth_fmu):
     out = tmp_path_factory.mktemp("hover_study_session")
     report = run_study(out, StudySettings(), quiet=True)
     return {"dir": out, "report": report, "tree": study_tree(out)}
+
+
+@pytest.fixture(scope="session")
+def known_system_chain(tmp_path_factory):
+    """Output folder of ``run_flight_data`` on the known system's files (seed 3), the
+    flight-data chain of tests/test_flight_data.py, run once per session: that module and
+    tests/test_report_cli.py read it."""
+    import trust_system
+    from sysid.pipeline.flight_data import run_flight_data
+    from test_flight_data import known_system_files
+
+    root = tmp_path_factory.mktemp("known_system_chain")
+    files = known_system_files(root, 3)
+    run_flight_data(files, root / "out", structure=trust_system.STRUCTURE_FILE, quiet=True)
+    return root / "out"

@@ -4,7 +4,8 @@ Fast: the measured outputs, pairs and structure; the accelerometers' velocity re
 against the analytic ones of a known system; the example files' jittered clock; and the
 whole chain on a known linear system of its own (tests/trust_system.py, the test bed of
 issue 21) measured the way the example is (p q r phi theta psi ax ay az, no u v w), written as
-CSV files: the identified derivatives against the system's truth, the report in Chromium.
+CSV files: the identified derivatives against the system's truth, the report in Chromium
+(the chain runs once per session: ``known_system_chain`` in conftest.py).
 
 Slow (``SYSID_EXHAUSTIVE=1 pytest -m slow``; 2-5 min on the shared machine; the known-system
 chain is its reduced form in the default run): the README's worked example, the
@@ -15,10 +16,8 @@ the same structure (:func:`sysid.truth.linearize.truth_for_structure`).
 
 from __future__ import annotations
 
-import functools
 import os
 import re
-import tempfile
 import tomllib
 from pathlib import Path
 
@@ -43,7 +42,7 @@ from sysid.report.read import pair_costs
 from sysid.truth import linearize, trim
 from sysid.truth.linearize import truth_for_structure
 from sysid.pipeline.flight_data import (measured_outputs, measured_pairs, measured_structure,
-                                        read_flight_data, run_flight_data, structure_toml)
+                                        read_flight_data, structure_toml)
 
 EXHAUSTIVE = os.environ.get("SYSID_EXHAUSTIVE") == "1"
 ACC_OUTPUTS = ("p", "q", "r", "phi", "theta", "psi", "ax", "ay", "az")
@@ -154,7 +153,7 @@ def test_duplicate_manoeuvre_names_are_refused(tmp_path):
 # -- the whole chain on a known system -------------------------------------------------------
 
 
-def _known_system_files(folder: Path, seed: int) -> list[Path]:
+def known_system_files(folder: Path, seed: int) -> list[Path]:
     """trust_system's sweeps (one per axis, 60 s) measured as p q r phi theta psi ax ay az:
     the accelerometers are the exact specific force (``ax = u' - K_u x``, the periodic
     records differentiated on their DFT lines) plus white noise; no u v w; CSV files."""
@@ -180,15 +179,6 @@ def _known_system_files(folder: Path, seed: int) -> list[Path]:
     return paths
 
 
-@functools.lru_cache(maxsize=None)
-def known_system_chain(seed: int = 3) -> Path:
-    """Output folder of ``run_flight_data`` on the known system's files (once per process)."""
-    root = Path(tempfile.mkdtemp(prefix="sysid-flight-"))
-    files = _known_system_files(root, seed)
-    run_flight_data(files, root / "out", structure=trust_system.STRUCTURE_FILE, quiet=True)
-    return root / "out"
-
-
 def _sections(html: str) -> list[str]:
     return re.findall(r'<section id="([a-z_]+)"', html)
 
@@ -200,8 +190,8 @@ def _images_loaded(chromium, path: Path) -> tuple[int, int]:  # noqa: F811
     return int(m.group(1)), int(m.group(2))
 
 
-def test_known_system_chain_writes_everything_and_reads_no_truth():
-    out = known_system_chain()
+def test_known_system_chain_writes_everything_and_reads_no_truth(known_system_chain):
+    out = known_system_chain
     for name in ("campaign.nc", "frequency_domain.fmu", "time_domain.fmu", "comparison.csv",
                  "report.html", "structure.toml"):
         assert (out / name).exists(), name
@@ -237,9 +227,9 @@ KNOWN_BOUNDS = {"frequency_domain": dict(L_p=0.05, M_q=0.05, L_lat=0.05, M_lon=0
                                     Z_col=0.20)}
 
 
-def test_known_system_chain_identifies_the_system():
+def test_known_system_chain_identifies_the_system(known_system_chain):
     """Both models against the system's truth: the chain read only the files."""
-    data = CampaignData.read(known_system_chain() / "campaign.nc")
+    data = CampaignData.read(known_system_chain / "campaign.nc")
     for method, bounds in KNOWN_BOUNDS.items():
         model = data.model(method)
         values = dict(zip(map(str, model.parameter.values), model.value.values))
@@ -250,8 +240,9 @@ def test_known_system_chain_identifies_the_system():
     assert values["Z_w"] < 0 and values["N_r"] < 0     # stable subsidences, as in the truth
 
 
-def test_known_system_report_opens_with_every_figure(chromium):  # noqa: F811
-    out = known_system_chain()
+def test_known_system_report_opens_with_every_figure(known_system_chain,
+                                                    chromium):  # noqa: F811
+    out = known_system_chain
     loaded, total = _images_loaded(chromium, out / "report.html")
     assert total == len(list((out / "figures").glob("*.png"))) and loaded == total > 10
 

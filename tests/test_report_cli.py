@@ -1,9 +1,9 @@
 """``sysid report CAMPAIGN.nc``: the report of any campaign, at every stage it may hold.
 
 The campaign is the known-system flight-data chain of tests/test_flight_data.py (no truth
-model), cut back to what a user has after each stage: imported data only; plus the
-frequency responses; plus the identified models; everything (verification, comparison,
-validation). Each report must open in headless Chromium with every image decoded and the
+model; the session's ``known_system_chain`` in conftest.py), cut back to what a user has
+after each stage: imported data only; plus the frequency responses; plus the identified
+models; everything (verification, comparison, validation). Each report must open in headless Chromium with every image decoded and the
 page's script run, and hold exactly the sections whose groups exist.
 """
 
@@ -14,8 +14,6 @@ import re
 import pytest
 import xarray as xr
 from browser import chromium  # noqa: F401  (pytest fixture)
-
-from test_flight_data import known_system_chain
 
 from sysid.cli import main
 from sysid.data.netcdf import read_campaign, write_campaign
@@ -36,8 +34,8 @@ LEVELS = {
 }
 
 
-def _campaign(level: str, folder) -> str:
-    tree = read_campaign(known_system_chain() / "campaign.nc")
+def _campaign(level: str, folder, chain) -> str:
+    tree = read_campaign(chain / "campaign.nc")
     keep, _ = LEVELS[level]
     if keep is not None:
         missing = [g for g in keep if g not in tree.children]
@@ -50,8 +48,9 @@ def _campaign(level: str, folder) -> str:
 
 
 @pytest.mark.parametrize("level", list(LEVELS))
-def test_report_of_each_stage_opens_with_its_sections(level, tmp_path, chromium, capsys):  # noqa: F811
-    path = _campaign(level, tmp_path)
+def test_report_of_each_stage_opens_with_its_sections(level, tmp_path, known_system_chain,
+                                                     chromium, capsys):  # noqa: F811
+    path = _campaign(level, tmp_path, known_system_chain)
     out = tmp_path / f"report_{level}"
     assert main(["report", path, "-o", str(out), "-q"]) == 0
     printed = capsys.readouterr().out.strip()
@@ -66,10 +65,11 @@ def test_report_of_each_stage_opens_with_its_sections(level, tmp_path, chromium,
     assert int(m.group(2)) == len(files) == int(m.group(1)) > 0
 
 
-def test_report_refuses_a_missing_campaign_and_a_file_as_folder(tmp_path, capsys):
+def test_report_refuses_a_missing_campaign_and_a_file_as_folder(tmp_path, known_system_chain,
+                                                                capsys):
     assert main(["report", str(tmp_path / "none.nc")]) == 1
     assert "does not exist" in capsys.readouterr().err
-    path = _campaign("data", tmp_path)
+    path = _campaign("data", tmp_path, known_system_chain)
     (tmp_path / "file").write_text("x")
     assert main(["report", path, "-o", str(tmp_path / "file")]) == 1
     assert "is a file" in capsys.readouterr().err
