@@ -6,6 +6,8 @@ reduction residualised once more against the quasi-steady 6-DoF linearisation co
 the original path, and the flapping normalisation of truth_for_structure.
 """
 
+import os
+
 import numpy as np
 import pytest
 import xarray as xr
@@ -287,7 +289,12 @@ def test_frequency_domain_hybrid_meets_the_targets_it_meets(hybrid_fd, hybrid_tr
             (name, got[name], hybrid_truth[name])
 
 
-@pytest.mark.slow  # the 38-parameter output-error fit: 1-5 min on 2 shared cores (measured)
+@pytest.mark.slow  # the 38-parameter output-error fit: 29 s of CPU, 1-5 min on 2 shared cores
+@pytest.mark.skipif(os.environ.get("SYSID_EXHAUSTIVE") != "1",
+                    reason="the 38-parameter output-error fit on the hover campaign (29 s of "
+                    "CPU; 282 s in a loaded suite run); its tied parameters' sensitivities are "
+                    "checked by test_tied_sensitivities_are_the_sums_of_the_untied_ones; "
+                    "SYSID_EXHAUSTIVE=1 runs it")
 def test_time_domain_hybrid_meets_the_targets_it_meets(hybrid_td, hybrid_fd, hybrid_truth,
                                                       hybrid_campaign):
     """Time-domain hover_hybrid on the 3211s: N_ped within 15 % of the truth, the two domains
