@@ -52,8 +52,8 @@ next, so where it dominates the residuals this bound measures the misfit, not th
 Noise bound (``cramer_rao_noise``, :func:`random_error_bounds`): the same sandwich with the
 residual covariance taken from the spectral random error of the measured response instead of
 the residuals, so it carries the measurement noise only, not the model's misfit; the bound
-that matches the seed-to-seed scatter, which the fidelity scoreboard and the Monte Carlo
-calibration judge the errors on (docs/methods.md, "Accuracy").
+the fidelity scoreboard and the Monte Carlo calibration judge the errors on (docs/methods.md,
+"Accuracy": calibrated on known systems, optimistic on the truth FMU).
 
 Start values (paper: results depend on them; here they must not): from a start model
 Dataset (e.g. the truth model's quasi-steady linearisation) when given, otherwise from a

@@ -641,9 +641,10 @@ def section_fidelity(ctx: Context) -> str:
                         for m, v in flagged.items())
     text = (f"<p>Each identified derivative against the truth model's quasi-steady "
             f"linearisation, the error in units of the estimate's own one-sigma bound, the one "
-            f"that matches the seed-to-seed scatter by Monte Carlo (frequency domain: from the "
+            f"that does not count a repeatable misfit as noise (frequency domain: from the "
             f"spectral random error; time domain: corrected for coloured residuals; else the "
-            f"plain bound). CR is the plain Cramer-Rao bound (frequency domain: CIFER "
+            f"plain bound; their Monte Carlo calibration: docs/methods.md, \"Accuracy\"). "
+            f"CR is the plain Cramer-Rao bound (frequency domain: CIFER "
             f"convention) on which the guidelines' marks are judged. &#9888; where the error "
             f"exceeds {BIAS_BOUNDS_MAX:g} bounds: the noise cannot explain it, so the model "
             f"structure or the data are the cause; the flag says which where the fit shows "
