@@ -20,7 +20,8 @@ import xarray as xr
 from sysid.core.errors import IdentificationError
 from sysid.identify import (DEFAULT_PAIRS, cifer_cost, coherence_weight, equation_error_start,
                             identify_frequency_domain, parameter_statistics, select_fit_data)
-from sysid.identify.frequency_domain import _Problem
+from sysid.identify.frequency_domain import (W_G, W_P, FitData, _Problem, response_jacobian,
+                                             response_residuals)
 from sysid.models import six_dof_structure, simulate
 from sysid.core.units import DEG, FT
 
@@ -460,3 +461,23 @@ def test_roll_row_running_away_is_anchored_at_the_start_damping():
     assert not runaway_parameters(anchored.structure.free_names, anchored.theta,
                                   [values[n] for n in anchored.structure.free_names],
                                   anchored.statistics)
+
+
+def test_jacobian_is_finite_where_the_model_response_vanishes():
+    """A trial point whose response is exactly zero (or whose slope overflows) gets zero
+    slope, as its residual is clamped to a constant; finite points keep the analytic
+    d dB = (20/ln 10) Re(dT/T), d deg = (180/pi) Im(dT/T)."""
+    n = 3
+    data = FitData(pairs=(("q", "lon"),), skipped={}, pair_index=np.zeros(n, int),
+                   omega=np.array([1.0, 2.0, 3.0]), mag_db=np.zeros(n), phase_deg=np.zeros(n),
+                   coherence=np.ones(n), random_error=np.zeros(n), weight=np.ones(n),
+                   ranges={"q/lon": (1.0, 3.0)}, n_points=n, coherence_min=0.6,
+                   coherence_variable="partial_coherence")
+    T = np.array([0.0, 1.0 + 1.0j, 1e-300])
+    dT = np.array([[1.0 + 0j], [0.5 + 0.25j], [1e300 + 0j]])
+    J = response_jacobian(T, dT, data)
+    assert np.all(np.isfinite(J)) and np.all(np.isfinite(response_residuals(T, data)))
+    assert J[0, 0] == 0.0 and J[n, 0] == 0.0 and J[2, 0] == 0.0
+    rel = dT[1, 0] / T[1]
+    np.testing.assert_allclose(J[1, 0], math.sqrt(W_G) * 20 / math.log(10) * rel.real)
+    np.testing.assert_allclose(J[n + 1, 0], math.sqrt(W_P) * 180 / math.pi * rel.imag)

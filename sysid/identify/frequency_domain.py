@@ -391,11 +391,14 @@ def response_jacobian(T, dT, data: FitData) -> np.ndarray:
     """Jacobian of :func:`response_residuals` from the response ``T`` (n_point,) and its
     derivatives ``dT`` (n_point, n_parameter): ``d dB = (20/ln 10) Re(dT/T)``,
     ``d deg = (180/pi) Im(dT/T)``."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rel = np.nan_to_num(np.asarray(dT) / np.asarray(T)[:, None])
-    sqrt_w = np.sqrt(data.weight)
-    return np.vstack([(sqrt_w * math.sqrt(W_G))[:, None] * _DB * rel.real,
-                      (sqrt_w * math.sqrt(W_P))[:, None] * _DEG * rel.imag])
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        rel = np.asarray(dT) / np.asarray(T)[:, None]
+        sqrt_w = np.sqrt(data.weight)
+        J = np.vstack([(sqrt_w * math.sqrt(W_G))[:, None] * _DB * rel.real,
+                       (sqrt_w * math.sqrt(W_P))[:, None] * _DEG * rel.imag])
+    # Where the response vanishes or overflows, response_errors clamps the residual to a
+    # constant: no slope (an inf here would stop the solver with a NaN/inf error).
+    return np.where(np.isfinite(J), J, 0.0)
 
 
 class _Problem:
