@@ -543,6 +543,7 @@ def describing_function(campaign: Campaign, *, omega, axis: str = "yaw", amplitu
                                                   "rate_amplitude", "distortion",
                                                   "off_axis_share")}
     H = np.full(w.shape, np.nan + 0j)
+    G = frequency_response(linear, w)  # the full linearisation, for the other holds' share
     for k, (x, T, m) in enumerate(zip(w, periods, flown.maneuvers)):
         ds = tree[f"maneuvers/{m.name}"].to_dataset()
         t = ds["time"].values - lead_in
@@ -560,8 +561,7 @@ def describing_function(campaign: Campaign, *, omega, axis: str = "yaw", amplitu
                 out["distortion"][k] = np.sqrt(np.mean(resid**2)) / abs(first[name])
         # the other holds move the other controls at omega too: their linear share of the
         # attitude is taken out (the data's conditioning on every control does the same)
-        G = frequency_response(linear, np.array([x]))
-        others = sum(complex(G.sel(output=attitude, input=c).values[0]) * first[c]
+        others = sum(complex(G.sel(output=attitude, input=c).values[k]) * first[c]
                      for c in CONTROLS if c != control)
         out["off_axis_share"][k] = abs(others) / abs(first[attitude] / zero_order_hold(x, dt))
         H[k] = (first[attitude] / zero_order_hold(x, dt) - others) / first[control]

@@ -178,8 +178,9 @@ def run_study(out_dir: str | Path, settings: StudySettings | None = None, *,
     ``parts`` (a subset of :data:`PARTS`) runs only those parts, each reusing what the parts
     before it stored (a part whose inputs are not stored yet computes them first). Returns
     ``None`` when ``results`` is not among them or the study is quick (no report). The
-    stages' tables (identification, verification, comparison, validation) go to ``log`` when given, else to standard output
-    unless ``quiet``; progress lines go to ``log`` or standard error unless ``quiet``.
+    stages' tables (identification, verification, comparison, validation) go to ``log`` when
+    given, else to standard output unless ``quiet``; progress lines go to ``log`` or standard
+    error unless ``quiet``.
 
     Examples
     --------
