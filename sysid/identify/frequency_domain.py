@@ -84,7 +84,8 @@ from sysid.core.errors import IdentificationError, InputDataError
 from sysid.core.guidelines import COHERENCE_MIN, FIT_TIME_LIMIT_S
 from sysid.identify.least_squares import compress
 from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
-                                      stepwise_reduction)
+                                      STOPPED_ABOVE_CEILING, StoppedAboveCeiling,
+                                      ceiling_watch, stepwise_reduction)
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters,
                                       ParameterStatistics, coloured_residual_covariance,
                                       on_parameters, parameter_rows, parameter_statistics,
@@ -736,7 +737,8 @@ class _Converged:
 
 
 def _solve(problem: _Problem, theta0, *, method: str, tol: float, max_nfev: int | None,
-           deadline: Deadline | None = None) -> scipy.optimize.OptimizeResult:
+           deadline: Deadline | None = None, ceiling: float | None = None
+           ) -> scipy.optimize.OptimizeResult:
     lo, hi = problem.structure.bounds
     theta0 = np.clip(np.asarray(theta0, float), lo, hi)
     bounded = np.any(np.isfinite(lo)) or np.any(np.isfinite(hi))
@@ -754,22 +756,31 @@ def _solve(problem: _Problem, theta0, *, method: str, tol: float, max_nfev: int 
     residuals = problem.compressed_residuals
     if deadline is not None:
         residuals = deadline.wrap(residuals)
-    return scipy.optimize.least_squares(residuals, theta0, jac=problem.compressed_jacobian,
+    jacobian = problem.compressed_jacobian
+    if ceiling is not None:  # a reduction trial: stop once J_ave cannot come under ceiling
+        jacobian = ceiling_watch(lambda th: (problem._compressed(np.asarray(th, float))[0],
+                                             problem.compressed_jacobian(th)),
+                                 ceiling, scale=1.0 / len(problem.data.pairs))
+    return scipy.optimize.least_squares(residuals, theta0, jac=jacobian,
                                         bounds=(lo, hi), method=method, x_scale="jac",
                                         ftol=tol, xtol=tol, gtol=tol, max_nfev=max_nfev)
 
 
 def _converge(structure: LinearStructure, data: FitData, theta0, *, method: str, tol: float,
-              max_nfev: int | None, counter: dict, deadline: Deadline | None = None
-              ) -> _Converged:
+              max_nfev: int | None, counter: dict, deadline: Deadline | None = None,
+              ceiling: float | None = None) -> _Converged:
     prob = _Problem(structure, data)
     if len(structure.free_index) == 0:
         theta = np.zeros(0)
         res_nfev, status, msg = 0, 0, "no free parameters"
     else:
-        res = _solve(prob, theta0, method=method, tol=tol, max_nfev=max_nfev,
-                     deadline=deadline)
-        theta, res_nfev, status, msg = res.x, res.nfev, res.status, res.message
+        try:
+            res = _solve(prob, theta0, method=method, tol=tol, max_nfev=max_nfev,
+                         deadline=deadline, ceiling=ceiling)
+            theta, res_nfev, status, msg = res.x, res.nfev, res.status, res.message
+        except StoppedAboveCeiling as stop:
+            theta, res_nfev, msg = stop.theta, prob.n_cost, str(stop)
+            status = STOPPED_ABOVE_CEILING
     costs = prob.pair_costs(theta)
     stats = parameter_statistics(prob.jacobian(theta) if len(theta) else np.zeros((1, 0)),
                                  theta, structure.free_names)
@@ -1010,13 +1021,14 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
     reduction = None
     final = full
     if reduce:
-        def refit(removed, previous):
+        def refit(removed, previous, ceiling):
             prev: _Converged = previous.payload
             st = structure.fix(removed, 0.0)
             start_vals = dict(zip(prev.structure.free_names, prev.theta))
             th0 = np.array([start_vals[n] for n in st.free_names])
-            c = _converge(st, data, th0, **kw)
-            return FitOutcome(c.J_ave, c.statistics, c)
+            c = _converge(st, data, th0, ceiling=ceiling, **kw)
+            return FitOutcome(c.J_ave, c.statistics, c,
+                              converged=c.status != STOPPED_ABOVE_CEILING)
 
         with progress.stage("model reduction"):
             reduction = stepwise_reduction(

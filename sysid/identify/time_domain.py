@@ -980,7 +980,9 @@ def identify_time_domain(records, structure: LinearStructure, *,
                          f"{full.outer_iterations} R updates ({full.nfev} LM evaluations)")
     reduction, final = None, full
     if reduce:
-        def refit(removed, previous):
+        def refit(removed, previous, ceiling):
+            # the ceiling is not used: the relaxation's likelihood has no lower bound from
+            # one solve's Gauss-Newton model (a later R update can lower it further)
             prev: _Converged = previous.payload
             st = structure.fix(removed, 0.0)
             vals = dict(zip(prev.structure.free_names, prev.theta))
