@@ -12,10 +12,14 @@ import numpy as np
 import pytest
 import xarray as xr
 
+from sysid.assess.metrics import J_RMS_GUIDELINE
 from sysid.assess.stages import verify_models
+from sysid.assess.verification import verify
 from sysid.core.kinematics import rigid_body_terms
-from sysid.core.units import STATES_6DOF
+from sysid.core.units import CONTROLS, STATES_6DOF
 from sysid.data.campaign import CampaignData
+from sysid.flight_test.campaign import default_campaign, run_campaign
+from sysid.spectral.response import frequency_response as spectral_response
 from sysid.identify.stages import fit_frequency_domain, fit_time_domain
 from sysid.models import load_structure, residualize_model
 from sysid.pipeline.study import StudySettings
@@ -307,3 +311,52 @@ def test_time_domain_hybrid_meets_the_targets_it_meets(hybrid_td, hybrid_fd, hyb
     assert set(j) == {"2311_lon", "2311_lat", "2311_col", "2311_ped"}
     for name, per_source in j.items():
         assert per_source["time_domain"] <= J_RMS_MAX, (name, per_source)
+
+
+# --- 2311 verification of the frequency-domain hybrid model (issue 22) -----------------------
+# docs/notes/2026-11-25-hybrid-2311-speed-derivatives.md: on the default campaign's 2311s the
+# truth's own linearisation (17 states, or reduced to hover_hybrid) reaches J_rms 0.24-0.84 on
+# five seeds, so the target is the model, not the FMU's nonlinearity; the frequency-domain
+# model missed it because the reduction dropped the speed derivatives, which the structure
+# now keeps. Seed 1 (before: J_rms 2.13, 0.67, 1.32, 1.53 on lon, lat, col, ped).
+
+#: hover_hybrid's speed derivatives kept through the reduction, as (row, column) of A.
+SPEED_ENTRIES = (("p", "v"), ("q", "u"), ("q", "w"), ("r", "v"), ("a1", "u"), ("a1", "v"),
+                 ("b1", "u"), ("b1", "v"))
+
+
+@pytest.fixture(scope="module")
+def seed1_campaign():
+    """The default hover campaign flown with seed 1 and its composite responses (about 10 s
+    of CPU), as the study computes them."""
+    tree = run_campaign(default_campaign(0.0, seed=1), quiet=True)
+    tree["frequency_response"] = xr.DataTree(spectral_response(
+        CampaignData(tree).maneuvers("sweep_*"), CONTROLS, STATES_6DOF,
+        transient_states=StudySettings().transient_states))
+    return CampaignData(tree, source="hover campaign, seed 1")
+
+
+def test_2311_verification_of_the_frequency_domain_hybrid(seed1_campaign):
+    """On the four 2311s (models held, biases and reference shifts estimated): the truth's
+    linearisation reduced to hover_hybrid meets J_rms <= 1 on every axis (the set-up can be
+    met on these records); the frequency-domain hover_hybrid model keeps its speed
+    derivatives through the reduction and meets J_rms <= 1 on lon and lat, and the code's
+    guideline (2) on col and ped, where it is still above 1 on some seeds (the note)."""
+    data = seed1_campaign
+    st = load_structure(HYBRID, trim=data.trim())
+    truth = truth_for_structure(data.tree["linearization_full"].to_dataset(), st)
+    fd = fit_frequency_domain(data, structure=HYBRID,
+                              coherence_min=StudySettings(structure=HYBRID).fd_coherence)
+    A = fd.model["A"].to_pandas()
+    for entry in SPEED_ENTRIES:
+        assert A.loc[entry] != 0.0, entry
+    records = data.maneuvers("2311_*")
+    assert set(records) == {"2311_lon", "2311_lat", "2311_col", "2311_ped"}
+    for name, record in records.items():
+        record.attrs.setdefault("maneuver", name)
+        j = {label: float(verify(model, record, outputs=RIGID, source=label)["j_rms"]
+                          .sel(source=label))
+             for label, model in (("linearisation", truth), ("fd", fd.model))}
+        assert j["linearisation"] <= J_RMS_MAX, (name, j)
+        limit = J_RMS_MAX if name in ("2311_lon", "2311_lat") else J_RMS_GUIDELINE
+        assert j["fd"] <= limit, (name, j)
