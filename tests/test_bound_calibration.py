@@ -35,6 +35,7 @@ import known_systems as ks
 import trust_system as ts
 from sysid.core.units import CONTROLS, STATES_6DOF
 from sysid.identify import identify_frequency_domain
+from sysid.identify.frequency_domain import SELECTION_DRAWS
 from sysid.spectral.response import frequency_response
 
 GOAL = (0.5, 2.0)           #: scatter / mean bound of an honest bound (issue 21)
@@ -43,22 +44,25 @@ GOAL = (0.5, 2.0)           #: scatter / mean bound of an honest bound (issue 21
 POOLED = (1 / 1.5, 1.5)
 
 
-def frequency_domain_runs(seeds, noise: float = 1.0):
+def frequency_domain_runs(seeds, noise: float = 1.0, selection_draws: int = 0):
     """Per seed: estimates, CIFER bounds, residual-scaled bounds and random-error bounds of
     the true structure fitted (from the truth, no reduction) to the default responses of the
-    trust system."""
+    trust system; with ``selection_draws`` the random-error bounds include the point
+    selection's scatter (``cramer_rao_total``)."""
     st = ts.structure()
     truth = ts.true_theta(st)
     est, cifer, scaled, noise_bounds = [], [], [], []
+    variable = "cramer_rao_total" if selection_draws else "cramer_rao_noise"
     for seed in seeds:
         fr = frequency_response(ts.records(seed, noise=noise), CONTROLS, STATES_6DOF)
-        result = identify_frequency_domain(fr, st, start=truth, reduce=False)
+        result = identify_frequency_domain(fr, st, start=truth, reduce=False,
+                                           selection_draws=selection_draws)
         est.append(result.theta)
         cifer.append(result.statistics.cramer_rao)
         scaled.append(result.model["cramer_rao_corrected"].sel(
             parameter=list(st.free_names)).values)
         assert np.allclose(result.scaled.cramer_rao, scaled[-1])
-        noise_bounds.append(result.model["cramer_rao_noise"].sel(
+        noise_bounds.append(result.model[variable].sel(
             parameter=list(st.free_names)).values)
     return truth, np.array(est), np.array(cifer), np.array(scaled), np.array(noise_bounds)
 
@@ -70,12 +74,15 @@ def _rms(x) -> float:
 def test_frequency_domain_scaled_bounds_match_the_errors_cifer_bounds_are_too_large():
     """Reduced form: 6 seeds x 28 parameters, errors against the truth in units of each
     bound. Measured on seeds 0-39 in blocks of 6: rms 1.00-1.14 in scaled bounds,
-    1.15-1.19 in random-error bounds, 0.16-0.20 in CIFER bounds."""
-    truth, est, cifer, scaled, noise_bounds = frequency_domain_runs(range(6))
+    1.15-1.19 in random-error bounds, 0.16-0.20 in CIFER bounds; on seeds 0-5 1.13 in the
+    scoreboard's bounds (random error and point selection: the selection adds little on an
+    exact structure, 0.07-0.17 of the random error in the median)."""
+    truth, est, cifer, scaled, noise_bounds = frequency_domain_runs(
+        range(6), selection_draws=SELECTION_DRAWS)
     z_scaled, z_cifer = (est - truth) / scaled, (est - truth) / cifer
     z_noise = (est - truth) / noise_bounds
-    print(f"rms error in scaled bounds {_rms(z_scaled):.2f}, in random-error bounds "
-          f"{_rms(z_noise):.2f}, in CIFER bounds {_rms(z_cifer):.3f}")
+    print(f"rms error in scaled bounds {_rms(z_scaled):.2f}, in random-error + selection "
+          f"bounds {_rms(z_noise):.2f}, in CIFER bounds {_rms(z_cifer):.3f}")
     assert POOLED[0] <= _rms(z_scaled) <= POOLED[1]
     assert POOLED[0] <= _rms(z_noise) <= POOLED[1]
     assert _rms(z_cifer) < 0.5

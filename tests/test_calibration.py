@@ -38,7 +38,7 @@ SCOREBOARD_BOUNDS = tuple(name for name, (model, variable) in CALIBRATION_BOUNDS
 
 def test_scoreboard_bounds_are_calibrated_in_both_domains():
     """The scatter test below judges each domain on the bound the fidelity scoreboard uses."""
-    assert SCOREBOARD_BOUNDS == ("frequency_domain_noise", "time_domain_corrected")
+    assert SCOREBOARD_BOUNDS == ("frequency_domain_total", "time_domain_corrected")
 
 
 @pytest.mark.slow

@@ -8,6 +8,7 @@ import xarray as xr
 
 import linear_systems as ls
 from sysid.core.errors import InputDataError
+from sysid.identify.frequency_domain import coherence_random_error
 from sysid.spectral.response import frequency_response, siso_frequency_response
 from sysid.core.units import db
 from sysid.core.util import Progress
@@ -104,6 +105,23 @@ def test_random_error_predicts_scatter_over_50_seeds(mimo):
     print("predicted / observed random error:", np.round(ratios, 3))
     for r in ratios:
         assert r > 1 / 1.5 and r < 1.5   # predicted / observed within a factor of 1.5
+
+
+@pytest.mark.parametrize("mimo", [False, True], ids=["siso", "conditioned"])
+def test_coherence_random_error_predicts_its_scatter_over_50_seeds(mimo):
+    """The coherence's own random error (Bendat & Piersol, with the averages Eq. 9/13 imply),
+    which the point-selection bootstrap draws from, predicts the scatter of the composite
+    coherence of input a over 50 noise seeds within a factor 1.5 (averaged over 1-8 rad/s)."""
+    recs, _, inputs, outputs = noisy_seeds(mimo, sigma=2.0)
+    ds = frequency_response(recs, inputs, outputs, omega_min=1.0, omega_max=8.0,
+                            n_frequencies=30, n_windows=3)
+    g2 = ds["partial_coherence"].sel(input="a")
+    observed = g2.std("output", ddof=1)
+    predicted = coherence_random_error(ds).sel(input="a").mean("output")
+    ratio = float(predicted.mean() / observed.mean())
+    print(f"coherence {float(g2.mean()):.2f}, predicted / observed scatter {ratio:.3f}")
+    assert 0.3 < float(g2.mean()) < 0.9      # a coherence that does scatter
+    assert 1 / 1.5 < ratio < 1.5
 
 
 def test_dataset_contract(mimo_records):

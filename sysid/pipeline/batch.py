@@ -51,6 +51,8 @@ The ``batch.nc`` Dataset (dims ``condition``, ``model`` (the identification meth
   ``cramer_rao_corrected`` (same dims): the bound corrected for coloured residuals (time
   domain) or scaled by the fit residuals (frequency domain, over its fitted points);
   ``cramer_rao_noise``: the frequency-domain bound from the spectral random error;
+  ``cramer_rao_selection``: its scatter over point re-selections; ``cramer_rao_total``: the
+  two in quadrature (the one the fidelity scoreboard judges on);
 - the Monte Carlo calibration of the bounds (:func:`calibration`; with at least two
   successful seeds at an airspeed), dims ``calibration_kt`` x ``dominant`` (the dominant
   derivatives, :data:`sysid.assess.comparison.DOMINANT`) x ``bound``
@@ -347,10 +349,7 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
         names += [str(p) for p in truth.parameter.values if str(p) not in names]
     methods = list(models)
     value = np.full((len(methods), len(names)), np.nan)
-    cr = np.full_like(value, np.nan)
-    crp = np.full_like(value, np.nan)
-    crc = np.full_like(value, np.nan)
-    crn = np.full_like(value, np.nan)
+    bounds = {name: np.full_like(value, np.nan) for name in _BOUND_VARIABLES}
     j_ave = np.full(len(methods), np.nan)
     for i, (method, model) in enumerate(models.items()):
         index = {str(p): k for k, p in enumerate(model.parameter.values)}
@@ -359,14 +358,9 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
             if k is None or not bool(model["free"].values[k]):
                 continue
             value[i, j] = float(model["value"].values[k])
-            if "cramer_rao" in model:
-                cr[i, j] = float(model["cramer_rao"].values[k])
-            if "cramer_rao_percent" in model:
-                crp[i, j] = float(model["cramer_rao_percent"].values[k])
-            if "cramer_rao_corrected" in model:
-                crc[i, j] = float(model["cramer_rao_corrected"].values[k])
-            if "cramer_rao_noise" in model:
-                crn[i, j] = float(model["cramer_rao_noise"].values[k])
+            for variable, table in bounds.items():
+                if variable in model:
+                    table[i, j] = float(model[variable].values[k])
         j_ave[i] = float(model.attrs.get("J_ave", np.nan))
     truth_values = parameter_values(truth, names)
     j_rms = np.full(len(methods), np.nan)
@@ -381,18 +375,27 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
             j_rms[i] = float(np.mean(values))
     dims = ("model", "parameter")
     return xr.Dataset(
-        {"value": (dims, value), "cramer_rao": (dims, cr),
-         "cramer_rao_percent": (dims, crp, {"units": "%"}),
-         "cramer_rao_corrected": (dims, crc, {
-             "long_name": "Cramer-Rao bound corrected for coloured residuals"}),
-         "cramer_rao_noise": (dims, crn, {
-             "long_name": "frequency-domain bound from the spectral random error"}),
+        {"value": (dims, value),
+         **{name: (dims, bounds[name], attrs) for name, attrs in _BOUND_VARIABLES.items()},
          "truth": (("parameter",), truth_values,
                    {"long_name": "truth model's quasi-steady linearisation"}),
          "J_ave": (("model",), j_ave, {"long_name": "average frequency-domain cost"}),
          "j_rms": (("model",), j_rms,
                    {"long_name": "mean J_rms over the verification manoeuvres"})},
         coords={"model": methods, "parameter": names})
+
+
+#: The bounds a condition's models carry into batch.nc (absolute unless said), with their
+#: attributes.
+_BOUND_VARIABLES = {
+    "cramer_rao": {"long_name": "plain Cramer-Rao bound"},
+    "cramer_rao_percent": {"units": "%"},
+    "cramer_rao_corrected": {"long_name": "Cramer-Rao bound corrected for coloured residuals"},
+    "cramer_rao_noise": {"long_name": "frequency-domain bound from the spectral random error"},
+    "cramer_rao_selection": {"long_name": "frequency-domain scatter over point re-selections"},
+    "cramer_rao_total": {"long_name": "frequency-domain random-error and selection bounds in "
+                                      "quadrature"},
+}
 
 
 # -----------------------------------------------------------------------------------------
@@ -766,14 +769,15 @@ def format_monte_carlo(mc: xr.Dataset) -> str:
 
 
 #: The bounds the Monte Carlo calibration judges: the frequency-domain Cramer-Rao bound (CIFER
-#: convention), the same scaled by the fit residuals and the one from the spectral random
-#: error, the time-domain white-noise bound
+#: convention), the same scaled by the fit residuals, the one from the spectral random
+#: error and that one with the point selection's scatter, the time-domain white-noise bound
 #: and the time-domain bound corrected for coloured residuals, as
 #: ``name -> (model, batch.nc variable)``.
 CALIBRATION_BOUNDS = {
     "frequency_domain": ("frequency_domain", "cramer_rao"),
     "frequency_domain_scaled": ("frequency_domain", "cramer_rao_corrected"),
     "frequency_domain_noise": ("frequency_domain", "cramer_rao_noise"),
+    "frequency_domain_total": ("frequency_domain", "cramer_rao_total"),
     "time_domain_white": ("time_domain", "cramer_rao"),
     "time_domain_corrected": ("time_domain", "cramer_rao_corrected"),
 }
@@ -902,6 +906,7 @@ def plot_calibration(ds: xr.Dataset, path: str | Path) -> Path | None:
     styles = {"frequency_domain": ("C0", "o", "FD: CR bound (CIFER)"),
               "frequency_domain_scaled": ("C9", "v", "FD: scaled by the residuals"),
               "frequency_domain_noise": ("C1", "x", "FD: from the spectral random error"),
+              "frequency_domain_total": ("C4", "*", "FD: random error + point selection"),
               "time_domain_white": ("C3", "s", "TD: white-noise CR bound"),
               "time_domain_corrected": ("C2", "D", "TD: corrected for coloured residuals")}
     names = [str(n) for n in ds.dominant.values]

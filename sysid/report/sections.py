@@ -592,7 +592,8 @@ def section_derivatives(ctx: Context) -> str:
 
 
 #: How the scoreboard labels the kind of bound an error is judged on (plain bounds: none).
-_BOUND_LABEL = {"random_error": " (random error)", "scaled": " (residual-scaled)",
+_BOUND_LABEL = {"selection": " (random error + selection)", "random_error": " (random error)",
+                "scaled": " (residual-scaled)",
                 "corrected": " (corrected)"}
 
 
