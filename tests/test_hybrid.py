@@ -211,9 +211,10 @@ def test_frequency_domain_hybrid_on_the_full_linear_response(hover_lin, hover_tr
 # Both domains' hover_hybrid fits as `sysid run hover --structure hover_hybrid` runs them, on the
 # session's hover campaign (seed 20261121), against the truth for that structure. Asserted:
 # the figures met on that campaign and on seeds 1 and 2 as well; the misses (frequency domain:
-# equivalent L_p, 2311 J_rms; time domain: most derivatives, Z_w and Z_col on every seed) and
-# the figures met on some seeds only (frequency-domain N_r, 2311 lon/lat) are measured in
-# docs/notes/2026-11-24-hover-hybrid-flapping-structure.md.
+# 2311 J_rms on col and ped; time domain: most derivatives, Z_w and Z_col on every seed) and
+# the figures met on some seeds only (frequency-domain N_r) are measured in
+# docs/notes/2026-11-24-hover-hybrid-flapping-structure.md and the notes of 2026-11-25 on the
+# hybrid (2311 speed derivatives, time-domain restarts).
 
 HYBRID = "hover_hybrid"
 RIGID = ["u", "v", "w", "p", "q", "r", "phi", "theta", "psi"]
