@@ -17,7 +17,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from test_identify_frequency import (SPURIOUS, analytic_response,  # noqa: E402
                                      truth_structure, truth_values)
 
-from sysid.identify import identify_frequency_domain  # noqa: E402
+from sysid.data.campaign import CampaignData  # noqa: E402
+from sysid.identify import frequency_domain, identify_frequency_domain, reduction  # noqa: E402
+from sysid.identify.stages import fit_frequency_domain  # noqa: E402
+from sysid.pipeline.study import StudySettings  # noqa: E402
 
 
 def test_bench_identify_with_reduction(benchmark):
@@ -63,6 +66,15 @@ def stage_counts(module):
         module._converge = original
 
 
+def hover_study_data(benchmark, request, baseline_cpu_s: float) -> CampaignData:
+    """The session's hover study as a campaign, or a skip under --benchmark-disable (its
+    baseline fit takes about ``baseline_cpu_s`` of CPU); the study runs only after the skip."""
+    if benchmark.disabled:
+        pytest.skip(f"the baseline fit takes ~{baseline_cpu_s:g} s of CPU: only with "
+                    "--benchmark-enable")
+    return CampaignData(request.getfixturevalue("hover_study")["tree"], source="hover study")
+
+
 def reduction_counts(result, stages) -> dict:
     """Cost evaluations of the full fit, of the accepted and of the undone reduction refits
     (the reduction's refits are the ``_converge`` calls after the first)."""
@@ -84,15 +96,7 @@ def test_bench_identify_frequency_domain_hover(benchmark, request):
     (margin inf: every trial converged, the baseline) in the same run: CPU seconds, their
     ratio and the evaluations per stage; the two must take the same decisions and give the
     same model (accepted refits are untouched, so bitwise)."""
-    if benchmark.disabled:
-        pytest.skip("the baseline fit takes ~15 s of CPU: only with --benchmark-enable")
-    from sysid.data.campaign import CampaignData
-    from sysid.identify import frequency_domain, reduction
-    from sysid.identify.stages import fit_frequency_domain
-    from sysid.pipeline.study import StudySettings
-
-    hover_study = request.getfixturevalue("hover_study")  # after the skip: it runs a study
-    data = CampaignData(hover_study["tree"], source="hover study")
+    data = hover_study_data(benchmark, request, 15)
     out, info = {}, benchmark.extra_info
 
     def fit():

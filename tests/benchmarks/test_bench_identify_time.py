@@ -23,9 +23,12 @@ from known_systems import add_noise, multistep_records  # noqa: E402
 from test_identify_frequency import (SPURIOUS, analytic_response,  # noqa: E402
                                      truth_structure, truth_values)
 
-from test_bench_identify import reduction_counts, stage_counts  # noqa: E402
+from test_bench_identify import hover_study_data, reduction_counts, stage_counts  # noqa: E402
 
-from sysid.identify import identify_frequency_domain, identify_time_domain  # noqa: E402
+from sysid.identify import (identify_frequency_domain, identify_time_domain,  # noqa: E402
+                            time_domain)
+from sysid.identify.stages import fit_time_domain  # noqa: E402
+from sysid.models import simulation as sim  # noqa: E402
 from sysid.identify.time_domain import (OutputErrorModel, fitted_outputs,  # noqa: E402
                                         prepare_records)
 
@@ -54,8 +57,7 @@ def _jacobian_timings(records, st) -> dict:
 def _relaxation_timings(records, st, start) -> dict:
     """The same fit (no reduction) with the early weighted solves capped (the default) and
     converged every time (the baseline, as before the cap)."""
-    import sysid.identify.time_domain as td
-
+    td = time_domain
     out = {}
     default = td.EARLY_NFEV
     try:
@@ -113,10 +115,7 @@ def _accelerations(on: bool) -> None:
     the relaxation, plain-recursion sensitivities) on, or off for the baseline: the solver
     on the full (samples x outputs) problem as before, no Aitken step, every propagation
     blocked."""
-    import sysid.identify.time_domain as td
-    import sysid.models.simulation as sim
-
-    td.COMPRESSED = td.AITKEN = on
+    time_domain.COMPRESSED = time_domain.AITKEN = on
     sim._MANY_RHS = 16 if on else 10**9
 
 
@@ -146,14 +145,7 @@ def test_bench_identify_time_domain_hover(benchmark, request):
     stage (full fit, accepted and undone reduction refits), and the agreement of
     the two (same removed parameters, estimates within 0.05 Cramer-Rao bounds, bounds within
     1 %)."""
-    if benchmark.disabled:
-        pytest.skip("the baseline fit takes ~20 s of CPU: only with --benchmark-enable")
-    from sysid.data.campaign import CampaignData
-    from sysid.identify import time_domain
-    from sysid.identify.stages import fit_time_domain
-
-    hover_study = request.getfixturevalue("hover_study")  # after the skip: it runs a study
-    data = CampaignData(hover_study["tree"], source="hover study")
+    data = hover_study_data(benchmark, request, 20)
     out, info = {}, benchmark.extra_info
 
     def fit():
