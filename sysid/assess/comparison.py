@@ -96,11 +96,12 @@ BIAS_REASONS = {
     "cifer": BIAS_MEANING,
     "white": BIAS_MEANING,
 }
-#: Frequency domain, flagged on the random error but within the residual-scaled bound.
-MISFIT_REASON = ("bias beyond the random error, within the fit residuals: structure misfit "
+#: Frequency domain, flagged on the noise bound (``selection`` or ``random_error``, the
+#: scoreboard's ``bound_kind``) but within the residual-scaled bound.
+MISFIT_REASON = ("bias beyond the noise bound, within the fit residuals: structure misfit "
                  "(repeatable, not noise)")
-#: Frequency domain, flagged on the random error and beyond the residual-scaled bound too.
-BEYOND_MISFIT_REASON = ("bias beyond the random error and the fit residuals: a data, start "
+#: Frequency domain, flagged on the noise bound and beyond the residual-scaled bound too.
+BEYOND_MISFIT_REASON = ("bias beyond the noise bound and the fit residuals: a data, start "
                         "or structure problem")
 
 
