@@ -804,7 +804,7 @@ def selection_bounds(fr: xr.Dataset, structure: LinearStructure, theta, *, draws
     :func:`perturbed_coherence` and refits ``structure`` from ``theta`` (``fit``: the
     keywords of the fit); the standard deviation over the draws is the bound. A draw whose
     fit runs away (:func:`runaway_parameters`; the fit would anchor it, i.e. change the
-    structure) or fails is not counted. Added in
+    structure) or fails (including past the fit's time limit) is not counted. Added in
     quadrature to the random-error bound it is the bound the scoreboard judges on
     (docs/methods.md, "Accuracy").
 
