@@ -99,6 +99,7 @@ from sysid.identify.statistics import (ColouredBounds, FitResultParameters,
                                       on_parameters, parameter_rows, parameter_statistics,
                                       perturbed_start)
 from sysid.models import LinearStructure
+from sysid.spectral.composite import trusted as composite_trusted
 from sysid.core.util import Deadline, Progress
 
 __all__ = [
@@ -751,7 +752,7 @@ def coherence_random_error(fr: xr.Dataset) -> xr.DataArray:
 def coherence_correlation_width(fr: xr.Dataset) -> np.ndarray:
     """Frequency span (rad/s) over which the composite coherence's errors are correlated, per
     frequency of ``fr`` (shape (frequency,)): the resolution ``2 pi / T`` of the shortest
-    window trusted there (``omega >= 2 pi / T``, :mod:`sysid.spectral.composite`), the one
+    window trusted there (:func:`sysid.spectral.composite.trusted`), the one
     with the most averages, which the Eq. 14 weights favour; the grid spacing when the
     Dataset does not record its windows (attribute ``windows``, s)."""
     omega = np.asarray(fr["frequency"].values, float)
@@ -759,7 +760,9 @@ def coherence_correlation_width(fr: xr.Dataset) -> np.ndarray:
     windows = np.sort(windows[np.isfinite(windows) & (windows > 0)])
     if not windows.size:
         return np.gradient(omega) if omega.size > 1 else np.ones_like(omega)
-    trusted = omega[:, None] >= (2.0 * math.pi / windows[None, :]) * (1.0 - 1e-9)
+    trusted = composite_trusted(xr.DataArray(omega, dims="frequency"),
+                                xr.DataArray(windows, dims="window")).transpose(
+        "frequency", "window").values
     shortest = np.where(trusted.any(axis=1), windows[np.argmax(trusted, axis=1)], windows[-1])
     return 2.0 * math.pi / shortest
 
