@@ -73,22 +73,47 @@ def _csv(path: Path) -> Path:
     return path
 
 
-#: SIGINT lands this long after the temporary appears (seeded, spread over a write).
+#: SIGINT lands this long after the temporary appears (seeded, spread over a 90 MB write).
 DELAYS = np.random.default_rng(26).uniform(0.0, 1.2, 12)
+
+#: The default form's signals, as fractions of the write window measured on this machine: a
+#: fixed delay lands after the write on a fast machine (0.59 and 0.28 s against a 0.27 s
+#: window on a quiet one, 2026-11-26) and inside it on a loaded one.
+WINDOW_FRACTIONS = (0.2, 0.5)
+
+
+def _write_window(csv: Path, campaign: Path) -> float:
+    """Seconds from the temporary's appearance to its rename, for one uninterrupted import."""
+    proc, writing = _start_when_temporary(_import_cmd(csv, campaign), campaign.parent,
+                                          campaign.name)
+    start = time.monotonic()
+    while writing and _temporaries(campaign.parent, campaign.name):
+        time.sleep(0.002)
+    window = time.monotonic() - start
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err.decode()
+    assert writing, "the import ended before its temporary was seen"
+    return window
 
 
 @pytest.mark.slow
 def test_sigint_during_a_campaign_write_exits_cleanly(tmp_path):
     """The deadlock needs the signal in a narrow window of the write: on the code before the
     fix, the exhaustive form (12 tries, a 90 MB campaign) hung in some of them (see the
-    module docstring); the default form makes 2 tries on a 25 MB campaign."""
-    n, tries = (100000, len(DELAYS)) if EXHAUSTIVE else (30000, 2)
+    module docstring); the default form makes 2 tries on a 25 MB campaign, at fractions of
+    its write window measured first."""
+    n = 100000 if EXHAUSTIVE else 30000
     campaign = tmp_path / "c.nc"
     _big_campaign(campaign, n=n)
-    before = campaign.read_bytes()
     csv = _csv(tmp_path / "sweep_lat_9.csv")
+    if EXHAUSTIVE:
+        delays = DELAYS
+    else:
+        window = _write_window(csv, campaign)
+        delays = [f * window for f in WINDOW_FRACTIONS]
+    before = campaign.read_bytes()
     outcomes = []
-    for delay in DELAYS[:tries]:
+    for delay in delays:
         proc, writing = _start_when_temporary(_import_cmd(csv, campaign), tmp_path, "c.nc")
         if not writing:  # the write finished before we saw it: nothing to interrupt
             proc.communicate(timeout=60)
