@@ -175,6 +175,7 @@ def test_capped_early_solves_reach_the_fully_converged_relaxation(clean_records,
     st = truth_structure()
     records = add_noise(clean_records, 1.0, seed=2)
     start = _perturbed_start(st, 5)
+    monkeypatch.setattr(td, "PROFILE", False)  # the relaxation to the end
     capped = identify_time_domain(records, st, start=start, reduce=False)
     monkeypatch.setattr(td, "EARLY_NFEV", 10_000)
     full = identify_time_domain(records, st, start=start, reduce=False)
@@ -184,6 +185,97 @@ def test_capped_early_solves_reach_the_fully_converged_relaxation(clean_records,
     rms = np.array([capped.output_rms_error[o] for o in capped.noise_variance])
     R = np.array(list(capped.noise_variance.values()))
     np.testing.assert_allclose(R, rms ** 2, rtol=2e-3)
+
+
+def _coloured_short_period(seed):
+    """The short-period system's records with coloured output noise (0.5 s): residuals
+    that are not white, so the per-output gradients at the optimum are not small."""
+    st = _short_period()
+    return st, _with_noise(_short_period_records(st), seed, 0.5)
+
+
+@pytest.mark.parametrize("case", ["known_system", "coloured_short_period"])
+def test_profile_solve_reaches_the_relaxation_s_fixed_point(clean_records, monkeypatch, case):
+    """Gauss-Newton on the profile likelihood and the relaxation run to a tight fixed point
+    (every solve converged, R to 1e-6) are two routes to the same maximum-likelihood
+    estimate: the same parameters to well inside their bounds, the same likelihood, and R
+    the mean squared residuals at the end point."""
+    import sysid.identify.time_domain as td
+
+    if case == "known_system":
+        st = truth_structure()
+        records, start = add_noise(clean_records, 1.0, seed=4), _perturbed_start(st, 6)
+    else:
+        st, records = _coloured_short_period(1)
+        start = st.theta0 * 1.3
+    profile = identify_time_domain(records, st, start=start, reduce=False)
+    monkeypatch.setattr(td, "PROFILE", False)
+    monkeypatch.setattr(td, "EARLY_NFEV", 10_000)
+    relaxed = identify_time_domain(records, st, start=start, reduce=False, r_tol=1e-6,
+                                   cost_tol=1e-12, max_outer=100)
+    z = (profile.theta - relaxed.theta) / relaxed.statistics.cramer_rao
+    assert np.max(np.abs(z)) < 0.05, dict(zip(st.free_names, np.round(z, 3)))
+    assert profile.cost == pytest.approx(relaxed.cost, abs=td.COST_SETTLED)
+    np.testing.assert_allclose(profile.statistics.cramer_rao, relaxed.statistics.cramer_rao,
+                               rtol=0.01)
+    rms = np.array([profile.output_rms_error[o] for o in profile.noise_variance])
+    np.testing.assert_allclose(list(profile.noise_variance.values()), rms ** 2, rtol=1e-8)
+
+
+def test_profile_model_matrix_is_the_exact_hessian_of_a_linear_problem():
+    """With only C and D entries free and biases as the only nuisance, the residuals are
+    linear in theta; then the Gauss-Newton matrix of the profile likelihood
+    ``L_p = N/2 sum_j ln mean(e_j^2)``, ``J^T R^-1 J - (2/N) sum_j g_j g_j^T``, is its exact
+    Hessian at every point, and ``J^T R^-1 J`` alone (what the relaxation uses) is not."""
+    st, records = _coloured_short_period(2)
+    params = [p.replace(free=False) for p in st.parameters] + [
+        Parameter("C_w_q", "C", "w", "q", 0.3), Parameter("C_q_w", "C", "q", "w", -0.2),
+        Parameter("D_w_lon", "D", "w", "lon", 0.5), Parameter("D_q_lon", "D", "q", "lon", 0.4)]
+    st = LinearStructure(states=st.states, inputs=st.inputs, parameters=params, name="linear")
+    outs = fitted_outputs(records, st)
+    model = OutputErrorModel(st, prepare_records(records, st, outs), outs, biases=True,
+                             initial_state=False)
+    model.profile, model.anchor = True, -1e9
+    theta = 0.3 * st.theta0  # off the optimum (the data have none of these entries), where
+    # the Hessian is still positive definite and the coupling term is large
+
+    def gradient(t):
+        model.profile_residuals(t)
+        return model._cache.gradient
+
+    ev = model.evaluate(theta, jacobian=True)
+    model.profile_residuals(theta)
+    q, RB = ev.compressed
+    f = model.profile_residuals(theta)
+    np.testing.assert_allclose(RB.T @ f[:-1], ev.gradient, rtol=1e-10)
+    assert 0.5 * f @ f == pytest.approx(ev.cost - model.anchor, rel=1e-12)
+    hessian = np.zeros((len(theta), len(theta)))
+    for j in range(len(theta)):
+        h = 1e-4
+        tp, tm = theta.copy(), theta.copy()
+        tp[j] += h
+        tm[j] -= h
+        hessian[:, j] = (gradient(tp) - gradient(tm)) / (2 * h)
+    np.testing.assert_allclose(RB.T @ RB, hessian, rtol=1e-6, atol=1e-8 * np.abs(hessian).max())
+    J = ev.jacobian
+    assert np.max(np.abs(J.T @ J - hessian)) > 0.5 * np.abs(hessian).max()
+
+
+def test_structured_secant_update_meets_the_secant_condition():
+    """``(H + S_new) s = y``, S_new symmetric, for an arbitrary symmetric ``H`` and ``S``."""
+    from sysid.identify.time_domain import _secant_update
+
+    rng = np.random.default_rng(7)
+    n = 6
+    H, S = rng.standard_normal((2, n, n))
+    H, S = H + H.T, S + S.T
+    theta_a, s, g_a = rng.standard_normal((3, n))
+    y = (H + np.eye(n)) @ s
+    assert y @ s > 0
+    new = _secant_update((theta_a, g_a, S), theta_a + s, g_a + y, H)
+    np.testing.assert_allclose((H + new) @ s, y, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(new, new.T, atol=1e-12)
+    assert _secant_update(None, theta_a + s, g_a + y, H) is None
 
 
 def test_model_dataset_is_simulatable_and_reproduces_the_fit(clean_records):

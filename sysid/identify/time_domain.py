@@ -23,16 +23,25 @@ covariance ``R = diag(sigma_j^2)``,
 
     L(theta, R) = 1/2 sum_records sum_k e[k]^T R^-1 e[k] + (N/2) sum_j ln R_jj
 
-(``N`` = samples over all records; the ``2 pi`` constant dropped). It is minimised by
-relaxation: (1) with R fixed, a Levenberg-Marquardt-type solve of the weighted least-squares
-problem (:func:`scipy.optimize.least_squares`, ``"trf"``, which honours the 0..0.3 s bounds
-of free delays); (2) ``R_jj = mean_k e_j[k]^2`` (its ML estimate); repeated until the relative
-changes of every ``R_jj`` and of ``L`` are below ``r_tol``/``cost_tol``. The solver is given
-the weighted problem compressed to ``n_theta + 1`` rows (``J = Q R_J``; residual
-``[Q^T r, |r - Q Q^T r|]``, Jacobian ``[R_J; 0]``): the same cost, gradient and Gauss-Newton
-models, so the same steps, without factorising the tall Jacobian at every iteration. Once
-the solves converge fully, every third R is extrapolated by Aitken's delta-squared step (the
-fixed-point iteration of R converges linearly); the stopping rule is unchanged.
+(``N`` = samples over all records; the ``2 pi`` constant dropped). It is minimised in two
+phases. First relaxation: (1) with R fixed, a few steps of a Levenberg-Marquardt-type solve
+of the weighted least-squares problem (:func:`scipy.optimize.least_squares`, ``"trf"``, which
+honours the 0..0.3 s bounds of free delays); (2) ``R_jj = mean_k e_j[k]^2`` (its ML
+estimate); until R changes by less than :data:`PROFILE_R_CHANGE` between passes. Then the
+profile likelihood ``L_p(theta) = min over R (and the nuisance) of L = N/2 sum_j ln R_jj(theta)
++ N p / 2`` is minimised by one trust-region solve (``"trf"``) with R re-estimated at every
+evaluation: gradient ``J^T R^-1 e`` (the weighted problem's), model matrix the Gauss-Newton
+matrix of ``L_p`` (``J^T R^-1 J`` less the coupling of theta and R; the relaxation ignores
+it and converges linearly) plus a structured secant estimate of the residuals'
+second-order terms (Dennis, Gay & Welsch 1981), until the model predicts less than
+:data:`PROFILE_SETTLED` of further decrease. The same maximum-likelihood point in about a
+third of the evaluations (docs/notes/2026-11-26-profile-likelihood.md). ``PROFILE = False``
+keeps the relaxation to the end: repeated until the relative changes of every ``R_jj`` and
+of ``L`` are below ``r_tol``/``cost_tol``, every third R extrapolated by Aitken's
+delta-squared step once its solves converge fully. The solver is given each problem
+compressed to ``n_theta + 1`` rows (``J = Q R_J``; residual ``[Q^T r, |r - Q Q^T r|]``,
+Jacobian ``[R_J; 0]``; for the profile, ``R_B^T R_B`` the model matrix): the same cost,
+gradient and quadratic models, without factorising the tall Jacobian at every iteration.
 
 Nuisance parameters (docs/methods.md, "Time-domain fit and verification"): a bias per output and an initial state per record. Both
 enter the outputs *linearly* for a given ``theta`` (``y = y_u(theta) + O(theta) x0 + b`` with
@@ -103,7 +112,7 @@ from sysid.core.guidelines import FIT_TIME_LIMIT_S
 from sysid.core.util import Deadline, Progress
 from sysid.data.campaign import record_trim
 from sysid.data.importers import validate_time_history
-from sysid.identify.least_squares import compress
+from sysid.identify.least_squares import compress, triangle
 from sysid.identify.reduction import GUIDELINES, FitOutcome, ReductionResult, stepwise_reduction
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters,
                                       ParameterStatistics, coloured_residual_covariance,
@@ -141,6 +150,21 @@ COST_SETTLED = 0.01
 #: rows (``OutputErrorModel.compressed_residuals``), and Aitken extrapolation of R.
 COMPRESSED = True
 AITKEN = True
+#: Estimator: Gauss-Newton on the profile likelihood ``L_p(theta) = min over R of L`` (R
+#: re-estimated at every evaluation; ``OutputErrorModel._profile_model``), instead of the
+#: relaxation (LM at fixed R, then the R update), which converges only linearly.
+PROFILE = True
+#: Fixed point of R and the nuisance parameters at one theta (``_consistent_variance``):
+#: largest relative change of R accepted, and the iterations allowed.
+CONSISTENT_R_CHANGE = 1e-9
+CONSISTENT_MAX_ITER = 50
+#: The relaxation's capped passes run until R changes by less than this (relative) between
+#: passes; the profile solve takes over from there (at once in a refit, which starts from
+#: the previous fit's R).
+PROFILE_R_CHANGE = 0.1
+#: The profile solve stops at an iterate where its Gauss-Newton model predicts a decrease of
+#: the negative log-likelihood below this (``1/2 |q|^2``): 1/10 of COST_SETTLED.
+PROFILE_SETTLED = 1e-3
 #: Simulated (whitened) values beyond this count as a diverged trial model.
 _HUGE = 1e100
 
@@ -277,7 +301,13 @@ class _Evaluation:
     sens: list = field(default_factory=list)  #: weighted sensitivities (N p, n_theta)
     nuisance: list = field(default_factory=list)  #: weighted nuisance columns (N p, k)
     kept: list = field(default_factory=list)  #: names of the estimated nuisance columns
+    factor: list = field(default_factory=list)  #: lower Cholesky factors of K^T K per record
     compressed: tuple | None = None  #: (f, J) of the compressed problem (n_theta + 1 rows)
+    sigma: np.ndarray | None = None  #: noise std devs that whitened this evaluation
+    R: np.ndarray | None = None  #: mean squared errors per output (floored), re-estimated
+    cost: float = math.inf  #: L(theta, R) at that R, the profile likelihood
+    gradient: np.ndarray | None = None  #: J^T r, the gradient of the profile likelihood
+    secant: np.ndarray | None = None  #: the structured secant matrix S at this theta
 
 
 class OutputErrorModel:
@@ -302,6 +332,11 @@ class OutputErrorModel:
         self.biases = bool(biases)
         self.initial_state = bool(initial_state)
         self.sigma = np.ones(len(self.outputs))
+        #: profile likelihood: R re-estimated at every evaluation (see ``_consistent_variance``)
+        self.profile = False
+        self.floor = np.zeros(len(self.outputs))  #: floor of the noise variances
+        self.anchor = 0.0  #: cost offset of the profile problem handed to the solver
+        self.secant = None  #: (theta, gradient, S) at the profile solve's last accepted iterate
         self.n_cost = 0
         self.n_jac = 0
         self._cache: _Evaluation | None = None
@@ -403,44 +438,119 @@ class OutputErrorModel:
         # A trial step may produce a violently unstable model: overflow is detected in
         # _record (infinite residual), not warned about.
         with np.errstate(over="ignore", invalid="ignore"):
+            sims = []
             for rec in self.records:
                 if rec.dt not in disc:
                     disc[rec.dt] = self._discretise(A, Bg, rec.dt, jacobian)
-                out = self._record(rec, disc[rec.dt], groups, Cf, Df, jacobian, ev)
+                sims.append(self._simulate(rec, disc[rec.dt], groups, Cf, Df))
+            if self.profile:
+                self.sigma = np.sqrt(self._consistent_variance(sims))
+            for rec, sim in zip(self.records, sims):
+                out = self._record(rec, sim, disc[rec.dt], groups, Cf, Df, jacobian, ev)
                 res_parts.append(out[0])
                 if jacobian:
                     jac_parts.append(out[1])
         ev.residual = np.concatenate(res_parts)
+        ev.sigma = self.sigma.copy()
+        if np.all(np.isfinite(ev.residual)):
+            ev.R = _noise_variance(ev.errors, self.floor)
+            ev.cost = _likelihood(ev.errors, ev.R)
         if jacobian:
             ev.jacobian = np.vstack(jac_parts)
             self.n_jac += 1
         self._cache = ev
         return ev
 
-    def _record(self, rec: TimeRecord, disc, groups, Cf, Df, jacobian, ev: _Evaluation):
-        """Residuals (and projected Jacobian) of one record; appends its errors, nuisance
-        estimates and sensitivities to ``ev``."""
-        N, p, n = len(rec.time), len(self.outputs), self.structure.A0.shape[0]
-        sig = self.sigma
+    def _simulate(self, rec: TimeRecord, disc, groups, Cf, Df) -> dict:
+        """Unweighted simulation of one record: delayed inputs ``V``, ``dV`` (N, G), forced
+        states ``Xu`` (N, n) and outputs ``Yu`` (N, p), and with initial states ``Phi^k``
+        ``Xo`` (N, n, n) and its outputs ``Yo`` (N, p, n)."""
+        N, n = len(rec.time), self.structure.A0.shape[0]
         Phi, Gam = disc["Phi"], disc["Gam"]
         VV = [_delayed(rec.U[:, g.column], g.delay / rec.dt) for g in groups]
         V = np.stack([v for v, _ in VV], axis=1)  # (N, G)
         Xu = propagate(Phi, V @ Gam.T)
-        Yu = Xu @ Cf.T + rec.U @ Df.T
-        target = ((rec.Z - Yu) / sig).ravel()
+        sim = {"V": V, "dV": np.stack([d for _, d in VV], 1), "Xu": Xu,
+               "Yu": Xu @ Cf.T + rec.U @ Df.T, "Xo": None, "Yo": None}
+        if self.initial_state:
+            if len(disc.get("powers", ())) < N:  # Phi^k, shared by the records of this dt
+                disc["powers"] = propagate(Phi, np.zeros((N, n, n)), np.eye(n))
+            sim["Xo"] = disc["powers"][:N]
+            sim["Yo"] = np.matmul(Cf, sim["Xo"])
+        return sim
+
+    def _consistent_variance(self, sims: list) -> np.ndarray:
+        """Noise variances ``R_jj = mean_k e_j[k]^2`` (floored) with the nuisance parameters
+        estimated at the weights ``R^-1`` themselves: the fixed point at this ``theta``, so
+        that the cost is the profile likelihood ``min over nuisance and R`` of ``L``.
+
+        Iterated from ``self.sigma**2`` on per-output Gram matrices of the unweighted nuisance
+        columns ``K_j`` (k x k) and targets ``t_j`` (``|e_j|^2 = |t_j|^2 - 2 c^T K_j^T t_j +
+        c^T K_j^T K_j c``), so an iteration costs no pass over the samples. Biases alone
+        do not depend on the weights (one iteration); initial states couple the outputs.
+        """
+        p, n = len(self.outputs), self.structure.A0.shape[0]
+        nb = p if self.biases else 0
+        k = nb + (n if self.initial_state else 0)
+        parts, n_samples = [], 0
+        for rec, sim in zip(self.records, sims):
+            t = rec.Z - sim["Yu"]  # (N, p)
+            n_samples += len(t)
+            G, b = np.zeros((p, k, k)), np.zeros((p, k))
+            if self.biases:  # bias j is a column of ones on output j
+                G[np.arange(p), np.arange(p), np.arange(p)] = len(t)
+                b[np.arange(p), np.arange(p)] = t.sum(axis=0)
+            if self.initial_state:
+                Yt = sim["Yo"].transpose(1, 2, 0)  # (p, n, N)
+                G[:, nb:, nb:] = Yt @ Yt.transpose(0, 2, 1)
+                b[:, nb:] = (Yt @ t.T[:, :, None])[..., 0]
+                if self.biases:
+                    cross = Yt.sum(axis=2)  # (p, n)
+                    G[np.arange(p), np.arange(p), nb:] = cross
+                    G[np.arange(p), nb:, np.arange(p)] = cross
+            parts.append((G if k else None, b, np.einsum("kj,kj->j", t, t)))
+        R = self.sigma ** 2
+        if not all(np.all(np.isfinite(a)) for part in parts for a in part if a is not None):
+            return R  # a diverged trial model: _record reports it
+        keeps = [None] * len(parts)  # the independent columns, chosen at the first weights
+        for _ in range(CONSISTENT_MAX_ITER):
+            w = 1.0 / R
+            sse = np.zeros(p)
+            for i, (G, b, tt) in enumerate(parts):
+                sse += tt
+                if G is None:
+                    continue
+                A = np.tensordot(w, G, 1)
+                if keeps[i] is None:
+                    keeps[i] = _independent_gram(A)[0]
+                keep = keeps[i]
+                c = np.zeros(len(keep))
+                c[keep] = scipy.linalg.cho_solve(
+                    scipy.linalg.cho_factor(A[np.ix_(keep, keep)]), (w @ b)[keep])
+                sse += np.einsum("k,jkl,l->j", c, G, c) - 2.0 * (b @ c)
+            R_new = np.maximum(sse / n_samples, self.floor)
+            done = np.max(np.abs(R_new / R - 1.0)) < CONSISTENT_R_CHANGE
+            R = R_new
+            if done:
+                break
+        return R
+
+    def _record(self, rec: TimeRecord, sim: dict, disc, groups, Cf, Df, jacobian,
+                ev: _Evaluation):
+        """Residuals (and projected Jacobian) of one simulated record, whitened by
+        ``self.sigma``; appends its errors, nuisance estimates and sensitivities to ``ev``."""
+        N, p, n = len(rec.time), len(self.outputs), self.structure.A0.shape[0]
+        sig = self.sigma
+        V, Xu, Xo = sim["V"], sim["Xu"], sim["Xo"]
+        target = ((rec.Z - sim["Yu"]) / sig).ravel()
         # Nuisance columns (whitened): biases first, then initial states.
         cols, names = [], self.nuisance_names(rec)
-        Xo = None
         if self.biases:
             Bc = np.zeros((N, p, p))
             Bc[:, np.arange(p), np.arange(p)] = 1.0 / sig
             cols.append(Bc.reshape(N * p, p))
         if self.initial_state:
-            if len(disc.get("powers", ())) < N:  # Phi^k, shared by the records of this dt
-                disc["powers"] = propagate(Phi, np.zeros((N, n, n)), np.eye(n))
-            Xo = disc["powers"][:N]
-            Yo = np.matmul(Cf, Xo) / sig[None, :, None]
-            cols.append(Yo.reshape(N * p, n))
+            cols.append((sim["Yo"] / sig[None, :, None]).reshape(N * p, n))
         bias = np.zeros(p)
         x0 = np.full(n, np.nan)
         x = Xu
@@ -475,11 +585,11 @@ class OutputErrorModel:
         ev.x0.append(x0)
         if not jacobian:
             return resid, None
-        S = self._sensitivities(rec, disc, groups, V, np.stack([d for _, d in VV], 1), x,
-                                Cf) / sig[None, :, None]
+        S = self._sensitivities(rec, disc, groups, V, sim["dV"], x, Cf) / sig[None, :, None]
         S = S.reshape(N * p, -1)
         ev.sens.append(S)
         ev.nuisance.append(K)
+        ev.factor.append(L)
         ev.kept.append([nm for nm, k in zip(names, keep) if k])
         # Kaufman's variable-projection Jacobian of r = (z - y)/sigma (projected).
         G = -(S - K @ _chol_solve(L, K.T @ S)) if K.shape[1] else -S
@@ -559,9 +669,148 @@ class OutputErrorModel:
             ev.compressed = compress(ev.residual, ev.jacobian)
         return ev.compressed
 
+    # -- the profile likelihood, compressed the same way ------------------------------------
+
+    def profile_residuals(self, theta):
+        """``f`` (n_theta + 1) with ``1/2 |f|^2 = L_p(theta) - anchor``, ``J_f^T f`` the
+        gradient of ``L_p`` and ``J_f^T J_f`` the model matrix ``B`` (``J_f`` from
+        :meth:`profile_jacobian`; ``_profile_model``): ``f = [R_B^-T g, rest]``. Raises
+        ``_Reanchor`` when ``L_p`` has fallen so far below the anchor that no such ``f``
+        exists."""
+        self.n_cost += 1
+        ev = self.evaluate(theta, jacobian=True)
+        if ev.compressed is None:
+            ev.compressed = self._profile_model(ev)
+        q, RJ = ev.compressed
+        if not np.all(np.isfinite(q)):
+            return np.full(len(q) + 1, np.inf)
+        rest2 = 2.0 * (ev.cost - self.anchor) - float(q @ q)
+        if rest2 < 0.0:
+            raise _Reanchor(ev.theta)
+        return np.append(q, math.sqrt(rest2))
+
+    def profile_jacobian(self, theta):
+        """``[R_B; 0]`` (:meth:`profile_residuals`). The solver asks for it at each accepted
+        iterate, which becomes the secant update's reference; raises ``_Settled`` there when
+        the model's predicted decrease ``1/2 |q|^2`` is below :data:`PROFILE_SETTLED`."""
+        ev = self.evaluate(theta, jacobian=True)
+        if ev.compressed is None:
+            ev.compressed = self._profile_model(ev)
+        q, RJ = ev.compressed
+        if np.all(np.isfinite(q)):
+            self.secant = (ev.theta, ev.gradient, ev.secant if ev.secant is not None
+                           else np.zeros_like(RJ))
+        if 0.5 * float(q @ q) < PROFILE_SETTLED:
+            raise _Settled(ev.theta)
+        return np.vstack([RJ, np.zeros((1, RJ.shape[1]))])
+
+    def _profile_model(self, ev: _Evaluation) -> tuple[np.ndarray, np.ndarray]:
+        """``(q, R_B)``: ``R_B`` upper triangular with ``R_B^T R_B = B = H + S`` and
+        ``q = R_B^-T g`` (g the gradient ``J^T r`` of the profile likelihood).
+
+        ``L_p = N/2 sum_j ln R_jj(theta) + const`` has the Gauss-Newton matrix
+        ``H = J^T J - (2/N) U^T W U``: ``U_j = J_j^T r_j`` (the gradient of output j alone, J
+        the projected whitened Jacobian) and ``W = (I - (2/N) V^T (K^T K)^-1 V)^-1`` with
+        ``V_j = K_j^T r_j`` (the nuisance's share, their Schur complement; W = I with
+        biases alone); floored outputs drop out. The relaxation's solver sees ``J^T J``
+        alone. ``S`` is the structured secant estimate of what ``H`` misses (the residuals'
+        second-order terms; Dennis, Gay & Welsch 1981), updated from the last accepted
+        iterate (``_secant_update``). Where ``B`` is not safely positive definite, ``H``,
+        then ``J^T J``.
+        """
+        r, J = ev.residual, ev.jacobian
+        n = J.shape[1]
+        if not (np.all(np.isfinite(r)) and np.all(np.isfinite(J))):
+            return np.full(n, np.inf), np.zeros((n, n))
+        RJ, q = triangle(J, r)
+        ev.gradient = RJ.T @ q
+        down = self._profile_downdate(ev)
+        P = RJ.T @ RJ
+        H = P - down.T @ down if down is not None else P
+        ev.secant = _secant_update(self.secant, ev.theta, ev.gradient, H)
+        d = np.sqrt(np.diag(P))
+        d = np.where(d > 0, d, 1.0)
+        for B in ((H + ev.secant) if ev.secant is not None else None, H):
+            if B is None:
+                continue
+            try:
+                U = scipy.linalg.cholesky(B / np.outer(d, d), lower=False)
+            except np.linalg.LinAlgError:
+                continue
+            diag = np.diag(U)
+            if np.min(diag) ** 2 >= 1e-10 * np.max(diag) ** 2:
+                RB = U * d
+                return scipy.linalg.solve_triangular(RB, ev.gradient, trans="T",
+                                                     lower=False), RB
+        return q, RJ
+
+    def _profile_downdate(self, ev: _Evaluation) -> np.ndarray | None:
+        """Rows ``D`` (k x n) with ``D^T D = (2/N) U^T W U`` (``_profile_model``); None when
+        ``I - (2/N) V^T (K^T K)^-1 V`` is not positive definite."""
+        p, n = len(self.outputs), ev.jacobian.shape[1]
+        U, M = np.zeros((p, n)), np.zeros((p, p))
+        start, n_samples = 0, 0
+        for k, E in enumerate(ev.errors):
+            m, n_samples = E.size, n_samples + len(E)
+            rr = ev.residual[start:start + m].reshape(-1, p)
+            U += np.einsum("kjn,kj->jn", ev.jacobian[start:start + m].reshape(-1, p, n), rr)
+            K = ev.nuisance[k]
+            if K.shape[1]:
+                V = np.einsum("kjl,kj->jl", K.reshape(-1, p, K.shape[1]), rr)  # (p, k)
+                Y = scipy.linalg.solve_triangular(ev.factor[k], V.T, lower=True)
+                M += Y.T @ Y
+            start += m
+        free = ev.R > self.floor
+        scale = 2.0 / n_samples
+        try:
+            Lw = scipy.linalg.cholesky(np.eye(int(free.sum())) - scale * M[np.ix_(free, free)],
+                                       lower=True)
+        except np.linalg.LinAlgError:
+            return None
+        return math.sqrt(scale) * scipy.linalg.solve_triangular(Lw, U[free], lower=True)
+
     def set_sigma(self, sigma) -> None:
         self.sigma = np.asarray(sigma, dtype=float)
         self._cache = None
+
+
+def _secant_update(state, theta: np.ndarray, gradient: np.ndarray,
+                   H: np.ndarray) -> np.ndarray | None:
+    """The structured secant matrix ``S`` at ``theta`` from ``state = (theta_a, g_a, S_a)``
+    of the last accepted iterate: ``(H + S) s = y`` (``s = theta - theta_a``, ``y`` the
+    change of the gradient) by the symmetric rank-2 update of NL2SOL (Dennis, Gay & Welsch
+    1981, with its sizing of ``S_a``); ``S_a`` itself when ``y^T s <= 0``; None without a
+    state."""
+    if state is None:
+        return None
+    theta_a, g_a, S = state
+    s, y = theta - theta_a, gradient - g_a
+    ys = float(y @ s)
+    if not np.any(s) or ys <= 0.0:
+        return S
+    y_sharp = y - H @ s
+    sSs = float(s @ S @ s)
+    if sSs != 0.0:
+        S = S * min(1.0, abs(float(s @ y_sharp)) / abs(sSs))
+    v = y_sharp - S @ s
+    return S + (np.outer(v, y) + np.outer(y, v)) / ys - float(v @ s) * np.outer(y, y) / ys ** 2
+
+
+class _Stop(Exception):
+    """Ends a profile solve at ``theta`` (raised through the solver)."""
+
+    def __init__(self, theta):
+        super().__init__(type(self).__name__)
+        self.theta = np.array(theta, float)
+
+
+class _Reanchor(_Stop):
+    """The profile likelihood fell below what the solver's cost offset allows (at ``theta``,
+    the lowest point so far): restart the solve there with a new offset."""
+
+
+class _Settled(_Stop):
+    """The profile solve has converged at ``theta`` (an accepted iterate)."""
 
 
 def _group_of(groups: list[_Group], row: int, column: int) -> int:
@@ -588,8 +837,12 @@ def _independent_columns(Nm: np.ndarray, rtol: float = 1e-7) -> tuple[np.ndarray
     L : ndarray (k_kept, k_kept)
         Lower Cholesky factor of ``Nm[:, keep]^T Nm[:, keep]``.
     """
-    k = Nm.shape[1]
-    Gram = Nm.T @ Nm
+    return _independent_gram(Nm.T @ Nm, rtol)
+
+
+def _independent_gram(Gram: np.ndarray, rtol: float = 1e-7) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_independent_columns` from the Gram matrix ``Nm^T Nm`` (k x k) itself."""
+    k = Gram.shape[0]
     d = np.sqrt(np.maximum(np.diag(Gram), 0.0))
     keep = np.zeros(k, dtype=bool)
     idx: list[int] = []
@@ -653,7 +906,8 @@ def _solve(model: OutputErrorModel, theta0, *, tol: float, max_nfev: int | None,
     lo, hi = model.structure.bounds
     span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
     theta0 = np.clip(np.asarray(theta0, float), lo + 1e-9 * span, hi - 1e-9 * span)
-    fun, jac = ((model.compressed_residuals, model.compressed_jacobian) if COMPRESSED
+    fun, jac = ((model.profile_residuals, model.profile_jacobian) if model.profile
+                else (model.compressed_residuals, model.compressed_jacobian) if COMPRESSED
                 else (model.residuals, model.jacobian))
     residuals = fun if deadline is None else deadline.wrap(fun)
     return scipy.optimize.least_squares(residuals, theta0, jac=jac,
@@ -666,11 +920,18 @@ def _converge(structure: LinearStructure, records: list[TimeRecord], outputs, th
               max_nfev: int | None, max_outer: int, r_tol: float, cost_tol: float,
               counter: dict, deadline: Deadline | None = None) -> _Converged:
     """Relaxation (Jategaonkar 2015 sec. 4.6): LM on theta with R fixed, then R from the
-    residuals, until R and the cost settle."""
+    residuals, until R and the cost settle; with :data:`PROFILE`, until R changes by less
+    than :data:`PROFILE_R_CHANGE`, then :func:`_converge_profile` (at once from a given
+    ``R0``: the reduction's refits)."""
     model = OutputErrorModel(structure, records, outputs, biases=biases,
                              initial_state=initial_state)
     floor = R_FLOOR * np.maximum(np.var(np.vstack([r.Z for r in records]), axis=0), 1e-12)
+    model.floor = floor
     theta = np.asarray(theta0, float).copy()
+    if PROFILE and R0 is not None:
+        return _converge_profile(model, theta, R0=R0, tol=tol, max_nfev=max_nfev,
+                                 max_outer=max_outer, counter=counter, deadline=deadline,
+                                 history=[], outer=0)
     if R0 is None:  # start weights: the residuals of the start model (unit weights first)
         R0 = _noise_variance(model.evaluate(theta).errors, floor)
     R = np.asarray(R0, float).copy()
@@ -705,6 +966,10 @@ def _converge(structure: LinearStructure, records: list[TimeRecord], outputs, th
         R, cost = R_new, new_cost
         if done:
             break
+        if PROFILE and change < PROFILE_R_CHANGE and outer < max_outer:
+            return _converge_profile(model, theta, R0=R, tol=tol, max_nfev=max_nfev,
+                                     max_outer=max_outer - outer, counter=counter,
+                                     deadline=deadline, history=history, outer=outer)
         chain = (chain or [np.log(R_in)]) + [np.log(R_new)] if full_solve else []
         if len(chain) == 3 and outer < max_outer and AITKEN:
             R, chain = np.exp(_aitken(*chain)), []
@@ -719,6 +984,48 @@ def _converge(structure: LinearStructure, records: list[TimeRecord], outputs, th
     counter["outer"] += outer
     return _Converged(structure, theta, R, cost, stats, ev, outer, nfev, history,
                       tuple(outputs))
+
+
+def _converge_profile(model: OutputErrorModel, theta: np.ndarray, *, R0: np.ndarray | None,
+                      tol: float, max_nfev: int | None, max_outer: int, counter: dict,
+                      deadline: Deadline | None, history: list, outer: int) -> _Converged:
+    """Trust-region solve (``trf``) of the profile likelihood ``L_p(theta)`` from ``theta``:
+    R and the nuisance parameters consistent at every evaluation, model matrix Gauss-Newton
+    plus structured secant (``OutputErrorModel._profile_model``), so one solve reaches the
+    maximum-likelihood point the relaxation approaches linearly. It stops where the model
+    predicts less than :data:`PROFILE_SETTLED` of further decrease (or at ``trf``'s own
+    tolerances ``tol``). The solver's cost is ``L_p - anchor``, the anchor ``N p / 2`` (the
+    whitened cost at a fixed R's optimum: the relaxation's scale for ``tol``) below the
+    start; a fall past it restarts the solve there (at most ``max_outer`` solves)."""
+    model.profile, model.secant = True, None
+    if R0 is not None:  # the inner fixed point's first guess
+        model.set_sigma(np.sqrt(R0))
+    half = 0.5 * sum(r.Z.size for r in model.records)
+    for outer in range(outer + 1, outer + max_outer + 1):
+        model.anchor = model.evaluate(theta).cost - half
+        if not len(theta):
+            break
+        try:
+            theta = _solve(model, theta, tol=tol, max_nfev=max_nfev, deadline=deadline).x
+        except _Settled as settled:
+            theta = settled.theta
+        except _Reanchor as low:
+            theta = low.theta
+            history.append((model.evaluate(theta).cost, 0.0))
+            continue
+        history.append((model.evaluate(theta).cost, 0.0))
+        break
+    ev = model.evaluate(theta, jacobian=True)
+    structure = model.structure
+    if len(theta):
+        stats = parameter_statistics(ev.jacobian, theta, structure.free_names)
+    else:
+        stats = parameter_statistics(np.zeros((1, 0)), theta, ())
+    counter["cost"] += model.n_cost
+    counter["jacobian"] += model.n_jac
+    counter["outer"] += outer
+    return _Converged(structure, theta, ev.R, ev.cost, stats, ev, outer, model.n_cost,
+                      history, tuple(model.outputs))
 
 
 def _aitken(x0: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
@@ -918,9 +1225,10 @@ def identify_time_domain(records, structure: LinearStructure, *,
         :data:`sysid.core.guidelines.FIT_TIME_LIMIT_S`); past it,
         :class:`~sysid.core.errors.IdentificationError`. None: unbounded.
     max_outer, r_tol, cost_tol
-        Relaxation: at most ``max_outer`` (LM solve, R update) cycles; stop when every
-        ``R_jj`` changes by less than ``r_tol`` (relative) and the cost by less than
-        ``cost_tol`` (relative) or :data:`COST_SETTLED` (absolute).
+        Relaxation: at most ``max_outer`` (LM solve, R update) cycles and profile solves
+        together; with ``PROFILE = False``, stop when every ``R_jj`` changes by less than
+        ``r_tol`` (relative) and the cost by less than ``cost_tol`` (relative) or
+        :data:`COST_SETTLED` (absolute).
     restart_fraction, seed
         When > 0, the final fit is restarted from its solution perturbed by
         ``+-restart_fraction`` (relative, seeded) and the better minimum kept.
@@ -1050,7 +1358,9 @@ def _model_dataset(final: _Converged, joint: ParameterStatistics, recs, outs, re
         "n_samples": int(sum(len(r.time) for r in recs)),
         "fitted_outputs": ",".join(outs),
         "noise_variance": json.dumps(dict(zip(outs, final.R.tolist()))),
-        "estimator": "maximum-likelihood output error (relaxation: LM with R fixed, R update)",
+        "estimator": ("maximum-likelihood output error (relaxation: LM with R fixed, R "
+                      "update; then Gauss-Newton on the profile likelihood)" if PROFILE else
+                      "maximum-likelihood output error (relaxation: LM with R fixed, R update)"),
         "nuisance": "bias per output and initial state per record (variable projection)",
         "sensitivities": "analytic (ZOH sensitivity equations, expm Frechet derivatives)",
         "cramer_rao_convention": "H = sum S^T R^-1 S (nuisance marginalised), "
