@@ -5,6 +5,10 @@ so later sessions reuse it) and ``hover_trim`` trims it in hover. Tests that nee
 marked ``@pytest.mark.fmu``. The expensive results several modules read are made once per
 session here: ``hover_study`` (the README's study on the truth FMU) and
 ``known_system_chain`` (the flight-data chain on a known linear system).
+
+The suite runs on pytest-xdist workers (``addopts`` in pyproject.toml). Each module goes to
+one worker whole, so its module fixtures are built once; modules that read one of the
+session results above go to the same worker, so each is made once per run.
 """
 
 import pytest
@@ -14,6 +18,35 @@ from sysid.core.util import blas_threads
 # is many mid-sized matrix products, which multi-threaded OpenBLAS slows by up to 10x on the
 # 2-core CI machine (measured).
 _BLAS_LIMIT = blas_threads()
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_cmdline_main(config):
+    """Timed benchmarks (``--benchmark-enable``) run in one process: pytest-benchmark turns
+    itself off under xdist workers, which would leave a timing run silently untimed."""
+    if config.getoption("benchmark_enable", False) and config.option.numprocesses:
+        config.option.numprocesses = 0
+
+
+# Session fixtures too costly to build on more than one worker.
+SHARED_SESSION_FIXTURES = ("hover_study", "known_system_chain")
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """Give every test an ``xdist_group``: its module, or the first of
+    :data:`SHARED_SESSION_FIXTURES` that any test of its module reads (so those modules share
+    one worker). A test's own ``xdist_group`` mark wins."""
+    module_group = {}
+    for item in items:
+        module = item.nodeid.split("::", 1)[0]
+        shared = next((f for f in SHARED_SESSION_FIXTURES if f in item.fixturenames), None)
+        if shared and not module_group.get(module, "").startswith("session:"):
+            module_group[module] = f"session:{shared}"
+        module_group.setdefault(module, module)
+    for item in items:
+        if item.get_closest_marker("xdist_group") is None:
+            item.add_marker(pytest.mark.xdist_group(module_group[item.nodeid.split("::", 1)[0]]))
 
 
 @pytest.fixture(scope="session")
