@@ -2,10 +2,11 @@
 15 s each at 100 Hz) of the known system, with model reduction, from a perturbed start
 (target < 20 s on one core); for comparison the frequency-domain identification of the same
 structure on analytic responses, and the cost of one analytic sensitivity Jacobian against
-one finite-difference Jacobian (one simulation per parameter), and the relaxation with its
-early weighted solves capped against converging every one (ratio). Runs once as a plain test
-under --benchmark-disable (the fits and their assertions; the timing comparisons only with
---benchmark-enable). Stable timings need one BLAS thread (OPENBLAS_NUM_THREADS=1):
+one finite-difference Jacobian (one simulation per parameter), the relaxation with its
+early weighted solves capped against converging every one (ratio), and the fit by the
+relaxation to the end against the default profile-likelihood solve (ratio). Runs once as a
+plain test under --benchmark-disable (the fits and their assertions; the timing comparisons
+only with --benchmark-enable). Stable timings need one BLAS thread (OPENBLAS_NUM_THREADS=1):
 on a loaded 2-core machine multi-threaded OpenBLAS slows the many small products by up to 10x.
 """
 
@@ -55,12 +56,14 @@ def _jacobian_timings(records, st) -> dict:
 
 
 def _relaxation_timings(records, st, start) -> dict:
-    """The same fit (no reduction) with the early weighted solves capped (the default) and
-    converged every time (the baseline, as before the cap)."""
+    """The same fit (no reduction) by the relaxation to the end, with the early weighted
+    solves capped (the default) and converged every time (the baseline, as before the
+    cap)."""
     td = time_domain
     out = {}
     default = td.EARLY_NFEV
     try:
+        td.PROFILE = False
         for label, cap in (("uncapped", 10**9), ("capped", default)):
             td.EARLY_NFEV = cap
             t0 = time.perf_counter()
@@ -68,7 +71,7 @@ def _relaxation_timings(records, st, start) -> dict:
             out[f"relaxation_{label}_s"] = time.perf_counter() - t0
             out[f"relaxation_{label}_cost_evaluations"] = result.n_cost_evaluations
     finally:
-        td.EARLY_NFEV = default
+        td.EARLY_NFEV, td.PROFILE = default, True
     out["relaxation_speedup_ratio"] = out["relaxation_uncapped_s"] / out["relaxation_capped_s"]
     return out
 
@@ -98,10 +101,11 @@ def test_bench_identify_time_domain(benchmark):
     info["time_domain_cost_evaluations"] = result.n_cost_evaluations
     info["time_domain_outer_iterations"] = result.n_outer_iterations
     info["reduction_steps"] = len(result.reduction.steps)
-    if not benchmark.disabled:  # timing comparisons only (no assertion): three more fits
+    if not benchmark.disabled:  # timing comparisons only (no assertion): five more fits
         info.update(_jacobian_timings(records, truth_structure()))
         info.update(_relaxation_timings(records, truth_structure(),
                                         truth_structure().theta0 * 0.7))
+        info.update(_profile_timings(records, st, start))
     print(f"\ntime domain {elapsed:.2f} s, frequency domain {elapsed_freq:.2f} s, {info}")
     assert set(result.reduction.removed) == set(SPURIOUS)
     assert set(result.structure.free_names) == set(truth_values())
@@ -110,12 +114,33 @@ def test_bench_identify_time_domain(benchmark):
     # extra_info beside the frequency-domain time, not asserted.
 
 
-def _accelerations(on: bool) -> None:
+def _profile_timings(records, st, start) -> dict:
+    """The same fit with reduction by the relaxation to the end (``PROFILE = False``, the
+    estimator before the profile solve) and by the default (relaxation, then the profile
+    likelihood): CPU seconds and cost evaluations."""
+    out = {}
+    try:
+        for label, on in (("relaxation", False), ("profile", True)):
+            time_domain.PROFILE = on
+            c0 = time.process_time()
+            result = identify_time_domain(records, st, start=start, reduce=True)
+            out[f"{label}_cpu_s"] = time.process_time() - c0
+            out[f"{label}_cost_evaluations"] = result.n_cost_evaluations
+    finally:
+        time_domain.PROFILE = True
+    out["profile_speedup_cpu"] = out["relaxation_cpu_s"] / out["profile_cpu_s"]
+    return out
+
+
+def _accelerations(on: bool, *, profile: bool | None = None) -> None:
     """Switch the time-domain fit's accelerations (compressed solver problem, Aitken step of
-    the relaxation, plain-recursion sensitivities) on, or off for the baseline: the solver
-    on the full (samples x outputs) problem as before, no Aitken step, every propagation
-    blocked."""
+    the relaxation, plain-recursion sensitivities, the profile-likelihood solve) on, or off
+    for the baseline: the solver on the full (samples x outputs) problem as before, no Aitken
+    step, every propagation blocked, the relaxation to the end. ``profile`` sets the last
+    alone (False: the relaxation with the other accelerations, the estimator before the
+    profile solve)."""
     time_domain.COMPRESSED = time_domain.AITKEN = on
+    time_domain.PROFILE = on if profile is None else profile
     sim._MANY_RHS = 16 if on else 10**9
 
 
@@ -140,12 +165,13 @@ def test_compressed_problem_has_the_full_problem_s_geometry():
 @pytest.mark.fmu
 def test_bench_identify_time_domain_hover(benchmark, request):
     """Goal: the hover study's time-domain fit with reduction <= 5 s. The fit of the
-    session's hover study (default campaign, seed 20261121) with and without the
-    accelerations in the same run: CPU and wall seconds, their ratio, the evaluations per
-    stage (full fit, accepted and undone reduction refits), and the agreement of
-    the two (same removed parameters, estimates within 0.05 Cramer-Rao bounds, bounds within
-    1 %)."""
-    data = hover_study_data(benchmark, request, 20)
+    session's hover study (default campaign, seed 20261121) in one run three ways: without
+    any acceleration (baseline), by the relaxation to the end with the other accelerations
+    (the estimator before the profile solve) and by the default (relaxation, then the
+    profile likelihood): CPU and wall seconds, their ratios, the evaluations per stage
+    (full fit, accepted and undone reduction refits), and the agreement (same removed
+    parameters, estimates within 0.05 Cramer-Rao bounds, bounds within 1 %)."""
+    data = hover_study_data(benchmark, request, 30)
     out, info = {}, benchmark.extra_info
 
     def fit():
@@ -161,22 +187,28 @@ def test_bench_identify_time_domain_hover(benchmark, request):
     try:
         _accelerations(False)
         out["baseline"] = fit()
+        label[0] = "relaxation"
+        _accelerations(True, profile=False)
+        out["relaxation"] = fit()
     finally:
         _accelerations(True)
-    label[0] = "accelerated"
-    out["accelerated"] = benchmark.pedantic(fit, rounds=1, iterations=1)
+    label[0] = "profile"
+    out["profile"] = benchmark.pedantic(fit, rounds=1, iterations=1)
     for label, (result, wall, cpu) in out.items():
         info[f"{label}_wall_s"], info[f"{label}_cpu_s"] = round(wall, 2), round(cpu, 2)
         info[f"{label}_cost_evaluations"] = result.n_cost_evaluations
         info[f"{label}_jacobian_evaluations"] = result.n_jacobian_evaluations
         info[f"{label}_outer_iterations"] = result.n_outer_iterations
-    info["speedup_cpu"] = round(out["baseline"][2] / out["accelerated"][2], 2)
-    info["speedup_wall"] = round(out["baseline"][1] / out["accelerated"][1], 2)
-    base, fast = out["baseline"][0], out["accelerated"][0]
+    for label in ("baseline", "relaxation"):
+        info[f"speedup_cpu_vs_{label}"] = round(out[label][2] / out["profile"][2], 2)
+        info[f"speedup_wall_vs_{label}"] = round(out[label][1] / out["profile"][1], 2)
     print(f"\n{info}")
-    assert base.reduction.removed == fast.reduction.removed
-    assert base.structure.free_names == fast.structure.free_names
-    cr = base.statistics.cramer_rao
-    assert np.all(np.abs(fast.theta - base.theta) <= 0.05 * cr), fast.theta - base.theta
-    assert np.allclose(fast.statistics.cramer_rao, cr, rtol=0.01)
-    assert np.allclose(fast.coloured.cramer_rao, base.coloured.cramer_rao, rtol=0.01)
+    fast = out["profile"][0]
+    for label in ("baseline", "relaxation"):
+        base = out[label][0]
+        assert base.reduction.removed == fast.reduction.removed
+        assert base.structure.free_names == fast.structure.free_names
+        cr = base.statistics.cramer_rao
+        assert np.all(np.abs(fast.theta - base.theta) <= 0.05 * cr), fast.theta - base.theta
+        assert np.allclose(fast.statistics.cramer_rao, cr, rtol=0.01)
+        assert np.allclose(fast.coloured.cramer_rao, base.coloured.cramer_rao, rtol=0.01)
