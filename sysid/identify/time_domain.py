@@ -150,9 +150,10 @@ COST_SETTLED = 0.01
 #: rows (``OutputErrorModel.compressed_residuals``), and Aitken extrapolation of R.
 COMPRESSED = True
 AITKEN = True
-#: Estimator: Gauss-Newton on the profile likelihood ``L_p(theta) = min over R of L`` (R
-#: re-estimated at every evaluation; ``OutputErrorModel._profile_model``), instead of the
-#: relaxation (LM at fixed R, then the R update), which converges only linearly.
+#: Estimator: after the relaxation's first passes, a trust-region solve of the profile
+#: likelihood ``L_p(theta) = min over R and the nuisance of L`` (R re-estimated at every
+#: evaluation; Gauss-Newton plus secant model, ``OutputErrorModel._profile_model``). False:
+#: the relaxation (LM at fixed R, then the R update) to the end, which converges linearly.
 PROFILE = True
 #: Fixed point of R and the nuisance parameters at one theta (``_consistent_variance``):
 #: largest relative change of R accepted, and the iterations allowed.
