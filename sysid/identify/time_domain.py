@@ -336,7 +336,7 @@ class OutputErrorModel:
         #: profile likelihood: R re-estimated at every evaluation (see ``_consistent_variance``)
         self.profile = False
         self.floor = np.zeros(len(self.outputs))  #: floor of the noise variances
-        self.anchor = 0.0  #: cost offset of the profile problem handed to the solver
+        self.anchor = None  #: cost offset of the profile problem handed to the solver
         self.secant = None  #: (theta, gradient, S) at the profile solve's last accepted iterate
         self.n_cost = 0
         self.n_jac = 0
@@ -685,6 +685,8 @@ class OutputErrorModel:
         q, RJ = ev.compressed
         if not np.all(np.isfinite(q)):
             return np.full(len(q) + 1, np.inf)
+        if self.anchor is None:  # a solve's start: N p / 2 below its cost and model minimum
+            self.anchor = ev.cost - 0.5 * float(q @ q) - 0.5 * ev.residual.size
         rest2 = 2.0 * (ev.cost - self.anchor) - float(q @ q)
         if rest2 < 0.0:
             raise _Reanchor(ev.theta)
@@ -997,13 +999,13 @@ def _converge_profile(model: OutputErrorModel, theta: np.ndarray, *, R0: np.ndar
     predicts less than :data:`PROFILE_SETTLED` of further decrease (or at ``trf``'s own
     tolerances ``tol``). The solver's cost is ``L_p - anchor``, the anchor ``N p / 2`` (the
     whitened cost at a fixed R's optimum: the relaxation's scale for ``tol``) below the
-    start; a fall past it restarts the solve there (at most ``max_outer`` solves)."""
+    start's model minimum; a fall past it restarts the solve there (at most ``max_outer``
+    solves)."""
     model.profile, model.secant = True, None
     if R0 is not None:  # the inner fixed point's first guess
         model.set_sigma(np.sqrt(R0))
-    half = 0.5 * sum(r.Z.size for r in model.records)
     for outer in range(outer + 1, outer + max_outer + 1):
-        model.anchor = model.evaluate(theta).cost - half
+        model.anchor = None  # set by the solve's first evaluation
         if not len(theta):
             break
         try:
