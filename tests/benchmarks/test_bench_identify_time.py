@@ -170,7 +170,10 @@ def test_bench_identify_time_domain_hover(benchmark, request):
     (the estimator before the profile solve) and by the default (relaxation, then the
     profile likelihood): CPU and wall seconds, their ratios, the evaluations per stage
     (full fit, accepted and undone reduction refits), and the agreement (same removed
-    parameters, estimates within 0.05 Cramer-Rao bounds, bounds within 1 %)."""
+    parameters, estimates within 0.1 Cramer-Rao bounds, bounds within 1 %). 0.1 bounds: a
+    likelihood settled to COST_SETTLED (0.01) allows sqrt(2 * 0.01) = 0.14; measured 0.047
+    (relaxation) and 0.068 (baseline) bounds, the relaxation itself 0.030 from the tightly
+    converged optimum (docs/notes/2026-11-26-profile-likelihood.md)."""
     data = hover_study_data(benchmark, request, 30)
     out, info = {}, benchmark.extra_info
 
@@ -209,6 +212,6 @@ def test_bench_identify_time_domain_hover(benchmark, request):
         assert base.reduction.removed == fast.reduction.removed
         assert base.structure.free_names == fast.structure.free_names
         cr = base.statistics.cramer_rao
-        assert np.all(np.abs(fast.theta - base.theta) <= 0.05 * cr), fast.theta - base.theta
+        assert np.all(np.abs(fast.theta - base.theta) <= 0.1 * cr), fast.theta - base.theta
         assert np.allclose(fast.statistics.cramer_rao, cr, rtol=0.01)
         assert np.allclose(fast.coloured.cramer_rao, base.coloured.cramer_rao, rtol=0.01)
