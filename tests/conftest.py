@@ -7,7 +7,7 @@ session here: ``hover_study`` (the README's study on the truth FMU) and
 ``known_system_chain`` (the flight-data chain on a known linear system).
 
 The suite runs on pytest-xdist workers (``addopts`` in pyproject.toml). Each module goes to
-one worker whole, so its module fixtures are built once; modules that read one of the
+one worker whole, so its module fixtures are built once; the modules that read one of the
 session results above go to the same worker, so each is made once per run.
 """
 
@@ -28,25 +28,61 @@ def pytest_cmdline_main(config):
         config.option.numprocesses = 0
 
 
-# Session fixtures too costly to build on more than one worker.
-SHARED_SESSION_FIXTURES = ("hover_study", "known_system_chain")
+#: Modules that read a session fixture too costly to build twice, by fixture: each set runs
+#: on one worker. A module that reads one and is not listed stops the run (see below).
+SHARED_SESSION_MODULES = {
+    "hover_study": ("tests/test_handling_qualities.py", "tests/test_hover_study.py",
+                    "tests/test_hybrid.py"),
+    "known_system_chain": ("tests/test_flight_data.py", "tests/test_report_cli.py"),
+}
+_GROUP = {module: f"session:{fixture}" for fixture, modules in SHARED_SESSION_MODULES.items()
+          for module in modules}
+
+#: Groups handed to the workers first, longest first (105, 62, 55, 43, 36, 22, 19, 19, 18,
+#: 17, 14 s in one serial run; docs/notes/2026-11-26-suite-on-two-workers.md), so that no long
+#: group starts last; the others follow in collection order. A stale list costs only balance.
+LONGEST_FIRST = ("tests/test_bound_calibration.py", "session:hover_study",
+                 "tests/test_identify_time.py", "session:known_system_chain",
+                 "tests/test_batch.py", "tests/test_report.py",
+                 "tests/test_robustness_spectral.py", "tests/test_identify_frequency.py",
+                 "tests/test_fmi_exchange.py", "tests/benchmarks/test_bench_identify_time.py",
+                 "tests/benchmarks/test_bench_report.py")
+
+
+def worker_group(nodeid: str) -> str:
+    """The worker group of a test: its module, or ``session:<fixture>`` for the modules of
+    :data:`SHARED_SESSION_MODULES`."""
+    module = nodeid.split("::", 1)[0]
+    return _GROUP.get(module, module)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Refuse a module that reads a shared session fixture without being listed in
+    :data:`SHARED_SESSION_MODULES`, and order the groups :data:`LONGEST_FIRST`."""
+    for item in items:
+        for fixture, modules in SHARED_SESSION_MODULES.items():
+            module = item.nodeid.split("::", 1)[0]
+            if fixture in item.fixturenames and module not in modules:
+                raise pytest.UsageError(
+                    f"{module} reads the session fixture {fixture!r}: add it to "
+                    f"SHARED_SESSION_MODULES[{fixture!r}] in tests/conftest.py so that the "
+                    "fixture is built on one worker only")
+    rank = {group: k for k, group in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(worker_group(item.nodeid), len(rank)))
 
 
 @pytest.hookimpl(tryfirst=True)
-def pytest_collection_modifyitems(config, items):
-    """Give every test an ``xdist_group``: its module, or the first of
-    :data:`SHARED_SESSION_FIXTURES` that any test of its module reads (so those modules share
-    one worker). A test's own ``xdist_group`` mark wins."""
-    module_group = {}
-    for item in items:
-        module = item.nodeid.split("::", 1)[0]
-        shared = next((f for f in SHARED_SESSION_FIXTURES if f in item.fixturenames), None)
-        if shared and not module_group.get(module, "").startswith("session:"):
-            module_group[module] = f"session:{shared}"
-        module_group.setdefault(module, module)
-    for item in items:
-        if item.get_closest_marker("xdist_group") is None:
-            item.add_marker(pytest.mark.xdist_group(module_group[item.nodeid.split("::", 1)[0]]))
+def pytest_xdist_make_scheduler(config, log):
+    """Whole groups (:func:`worker_group`) per worker, in collection order. xdist's own
+    ``loadgroup`` marks tests by renaming their node ids, which pytest 9.2 no longer
+    honours (it silently split the groups); this scheduler reads the ids as they are."""
+    from xdist.scheduler import LoadScopeScheduling
+
+    class GroupScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return worker_group(nodeid)
+
+    return GroupScheduling(config, log)
 
 
 @pytest.fixture(scope="session")
