@@ -160,11 +160,11 @@ PROFILE = True
 CONSISTENT_R_CHANGE = 1e-9
 CONSISTENT_MAX_ITER = 50
 #: The relaxation's capped passes run until R changes by less than this (relative) between
-#: passes; the profile solve takes over from there (at once in a refit, which starts from
-#: the previous fit's R).
+#: passes; the profile solve takes over from there (at once in a refit whose start's
+#: residuals are that close to the previous fit's R).
 PROFILE_R_CHANGE = 0.1
 #: The profile solve stops at an iterate where its Gauss-Newton model predicts a decrease of
-#: the negative log-likelihood below this (``1/2 |q|^2``): 1/10 of COST_SETTLED.
+#: the negative log-likelihood below this (``1/2 g^T H^-1 g``): 1/10 of COST_SETTLED.
 PROFILE_SETTLED = 1e-3
 #: Simulated (whitened) values beyond this count as a diverged trial model.
 _HUGE = 1e100
@@ -309,6 +309,7 @@ class _Evaluation:
     cost: float = math.inf  #: L(theta, R) at that R, the profile likelihood
     gradient: np.ndarray | None = None  #: J^T r, the gradient of the profile likelihood
     secant: np.ndarray | None = None  #: the structured secant matrix S at this theta
+    decrease: float = math.inf  #: 1/2 g^T H^-1 g, the Gauss-Newton model's predicted fall
 
 
 class OutputErrorModel:
@@ -695,7 +696,8 @@ class OutputErrorModel:
     def profile_jacobian(self, theta):
         """``[R_B; 0]`` (:meth:`profile_residuals`). The solver asks for it at each accepted
         iterate, which becomes the secant update's reference; raises ``_Settled`` there when
-        the model's predicted decrease ``1/2 |q|^2`` is below :data:`PROFILE_SETTLED`."""
+        the Gauss-Newton model's predicted decrease (``_profile_model``) is below
+        :data:`PROFILE_SETTLED`."""
         ev = self.evaluate(theta, jacobian=True)
         if ev.compressed is None:
             ev.compressed = self._profile_model(ev)
@@ -703,7 +705,7 @@ class OutputErrorModel:
         if np.all(np.isfinite(q)):
             self.secant = (ev.theta, ev.gradient, ev.secant if ev.secant is not None
                            else np.zeros_like(RJ))
-        if 0.5 * float(q @ q) < PROFILE_SETTLED:
+        if ev.decrease < PROFILE_SETTLED:
             raise _Settled(ev.theta)
         return np.vstack([RJ, np.zeros((1, RJ.shape[1]))])
 
@@ -719,7 +721,11 @@ class OutputErrorModel:
         alone. ``S`` is the structured secant estimate of what ``H`` misses (the residuals'
         second-order terms; Dennis, Gay & Welsch 1981), updated from the last accepted
         iterate (``_secant_update``). Where ``B`` is not safely positive definite, ``H``,
-        then ``J^T J``.
+        then ``J^T J``. Sets ``ev.decrease``, the decrease ``1/2 g^T H^-1 g`` the
+        Gauss-Newton model alone predicts (the stopping measure: a secant term grown large
+        far from the optimum can make ``B``'s prediction small while the gradient is not),
+        over the parameters not held at a bound (within 1e-3 of its range, the gradient
+        pushing outward).
         """
         r, J = ev.residual, ev.jacobian
         n = J.shape[1]
@@ -733,19 +739,30 @@ class OutputErrorModel:
         ev.secant = _secant_update(self.secant, ev.theta, ev.gradient, H)
         d = np.sqrt(np.diag(P))
         d = np.where(d > 0, d, 1.0)
-        for B in ((H + ev.secant) if ev.secant is not None else None, H):
-            if B is None:
-                continue
+
+        def factor(B):  # (q, R_B), or None where B is not safely positive definite
             try:
                 U = scipy.linalg.cholesky(B / np.outer(d, d), lower=False)
             except np.linalg.LinAlgError:
-                continue
+                return None
             diag = np.diag(U)
-            if np.min(diag) ** 2 >= 1e-10 * np.max(diag) ** 2:
-                RB = U * d
-                return scipy.linalg.solve_triangular(RB, ev.gradient, trans="T",
-                                                     lower=False), RB
-        return q, RJ
+            if np.min(diag) ** 2 < 1e-10 * np.max(diag) ** 2:
+                return None
+            RB = U * d
+            return scipy.linalg.solve_triangular(RB, ev.gradient, trans="T", lower=False), RB
+
+        gauss_newton = factor(H) if down is not None else None
+        gauss_newton = gauss_newton or (q, RJ)
+        ev.decrease = 0.5 * float(gauss_newton[0] @ gauss_newton[0])
+        lo, hi = self.structure.bounds
+        near = 1e-3 * np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+        g = ev.gradient
+        free = ~(((ev.theta - lo < near) & (g > 0)) | ((hi - ev.theta < near) & (g < 0)))
+        if not free.all():  # parameters held at a bound by their gradient do not count
+            M = (gauss_newton[1].T @ gauss_newton[1])[np.ix_(free, free)]
+            ev.decrease = 0.5 * float(g[free] @ np.linalg.solve(M, g[free])) if free.any() else 0.0
+        secant = factor(H + ev.secant) if ev.secant is not None else None
+        return secant or gauss_newton
 
     def _profile_downdate(self, ev: _Evaluation) -> np.ndarray | None:
         """Rows ``D`` (k x n) with ``D^T D = (2/N) U^T W U`` (``_profile_model``); None when
@@ -924,17 +941,21 @@ def _converge(structure: LinearStructure, records: list[TimeRecord], outputs, th
               counter: dict, deadline: Deadline | None = None) -> _Converged:
     """Relaxation (Jategaonkar 2015 sec. 4.6): LM on theta with R fixed, then R from the
     residuals, until R and the cost settle; with :data:`PROFILE`, until R changes by less
-    than :data:`PROFILE_R_CHANGE`, then :func:`_converge_profile` (at once from a given
-    ``R0``: the reduction's refits)."""
+    than :data:`PROFILE_R_CHANGE`, then :func:`_converge_profile` (at once when the start's
+    residuals fit a given ``R0`` that well: most of the reduction's refits)."""
     model = OutputErrorModel(structure, records, outputs, biases=biases,
                              initial_state=initial_state)
     floor = R_FLOOR * np.maximum(np.var(np.vstack([r.Z for r in records]), axis=0), 1e-12)
     model.floor = floor
     theta = np.asarray(theta0, float).copy()
     if PROFILE and R0 is not None:
-        return _converge_profile(model, theta, R0=R0, tol=tol, max_nfev=max_nfev,
-                                 max_outer=max_outer, counter=counter, deadline=deadline,
-                                 history=[], outer=0)
+        # a refit: straight to the profile solve when its start's residuals still fit R0
+        model.set_sigma(np.sqrt(R0))
+        R_start = _noise_variance(model.evaluate(theta).errors, floor)
+        if np.max(np.abs(R_start / R0 - 1.0)) < PROFILE_R_CHANGE:
+            return _converge_profile(model, theta, R0=R0, tol=tol, max_nfev=max_nfev,
+                                     max_outer=max_outer, counter=counter,
+                                     deadline=deadline, history=[], outer=0)
     if R0 is None:  # start weights: the residuals of the start model (unit weights first)
         R0 = _noise_variance(model.evaluate(theta).errors, floor)
     R = np.asarray(R0, float).copy()
@@ -995,9 +1016,10 @@ def _converge_profile(model: OutputErrorModel, theta: np.ndarray, *, R0: np.ndar
     """Trust-region solve (``trf``) of the profile likelihood ``L_p(theta)`` from ``theta``:
     R and the nuisance parameters consistent at every evaluation, model matrix Gauss-Newton
     plus structured secant (``OutputErrorModel._profile_model``), so one solve reaches the
-    maximum-likelihood point the relaxation approaches linearly. It stops where the model
-    predicts less than :data:`PROFILE_SETTLED` of further decrease (or at ``trf``'s own
-    tolerances ``tol``). The solver's cost is ``L_p - anchor``, the anchor ``N p / 2`` (the
+    maximum-likelihood point the relaxation approaches linearly. It stops where the
+    Gauss-Newton model predicts less than :data:`PROFILE_SETTLED` of further decrease; where
+    ``trf``'s own tolerances ``tol`` or ``max_nfev`` end it before that, it starts again
+    there (secant reset). The solver's cost is ``L_p - anchor``, the anchor ``N p / 2`` (the
     whitened cost at a fixed R's optimum: the relaxation's scale for ``tol``) below the
     start's model minimum; a fall past it restarts the solve there (at most ``max_outer``
     solves)."""
@@ -1016,8 +1038,14 @@ def _converge_profile(model: OutputErrorModel, theta: np.ndarray, *, R0: np.ndar
             theta = low.theta
             history.append((model.evaluate(theta).cost, 0.0))
             continue
-        history.append((model.evaluate(theta).cost, 0.0))
-        break
+        ev = model.evaluate(theta, jacobian=True)
+        if ev.compressed is None:
+            ev.compressed = model._profile_model(ev)
+        stalled = bool(history) and history[-1][0] - ev.cost < PROFILE_SETTLED
+        history.append((ev.cost, 0.0))
+        if ev.decrease < PROFILE_SETTLED or not np.isfinite(ev.decrease) or stalled:
+            break
+        model.secant = None  # trf stopped on its own tolerances short of settling: again
     ev = model.evaluate(theta, jacobian=True)
     structure = model.structure
     if len(theta):
