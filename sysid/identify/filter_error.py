@@ -1,0 +1,506 @@
+"""Time-domain identification with process noise: the filter-error method.
+
+Output error (:mod:`sysid.identify.time_domain`) has no process noise: turbulence that drives
+the aircraft lands in its residuals, and under a stabilising feedback loop those residuals
+are correlated with the recorded inputs, so its estimates are biased and its bounds (even
+corrected for coloured residuals) over-confident. The filter-error method (Maine & Iliff
+1986; Jategaonkar 2015 ch. 5) adds process noise ``w ~ N(0, Q)``, ``Q = F F^T`` per sample,
+to the model and corrects its states by the steady-state Kalman gain (docs/methods.md,
+"Filter error"):
+
+    x^[k+1] = Phi x^[k] + sum_g Gamma_g v_g[k] + K e[k] ,   x^[0] = x0
+    y^[k]   = C x^[k] + D u[k] + b ,                          e[k] = z[k] - y^[k]
+    P = Phi P Phi^T - Phi P C^T (C P C^T + R)^-1 C P Phi^T + Q     (discrete Riccati)
+    K = Phi P C^T (C P C^T + R)^-1
+
+with exactly the discretisation, delay and trim conventions of output error (``Phi, Gamma``
+exact zero-order hold, delayed inputs ``v_g`` by linear interpolation; the same
+:func:`~sysid.identify.time_domain.prepare_records` and input groups). When the model is
+right, ``e`` is the innovation sequence (white, covariance ``Sigma``) and the negative
+log-likelihood of the data is
+
+    L = 1/2 sum_k e[k]^T Sigma^-1 e[k] + (N/2) ln det Sigma
+
+(the prediction-error criterion of the innovations form, Ljung 1999 ch. 7). Parameters:
+the structure's ``theta``, the process-noise distribution ``F`` (lower triangular, or
+diagonal), the measurement-noise standard deviations ``r_j`` (``R = diag(r^2)``; ``K`` is
+unchanged when ``Q`` and ``R`` are scaled together, so ``r_0`` is held at its start value
+and the common factor is set at the end so that ``C P C^T + R`` matches ``Sigma``), a bias
+per output and an initial state per record. ``K`` comes from the Riccati equation
+(:func:`scipy.linalg.solve_discrete_are`), so the predictor ``Phi - K C`` is stable for
+every trial, and ``F = 0`` is output error. (A free gain matrix is not kept stable: without
+process noise its estimate piles up on the stability boundary, the zeros of the noise model
+``I + C (qI - Phi + K C)^-1 K`` meeting the unit circle.) Minimised by relaxation: a
+Levenberg-Marquardt solve on the whitened innovations ``Sigma^-1/2 e`` with ``Sigma`` fixed
+(:func:`scipy.optimize.least_squares`; sensitivities by forward differences), then
+``Sigma = 1/N sum e e^T`` (its maximum-likelihood estimate), until ``L`` changes by less
+than ``cost_tol``.
+
+Accuracy: Cramer-Rao bounds from the innovations' information matrix
+``M = sum_k S[k]^T Sigma^-1 S[k]`` (``S = de/d(theta, F, b, x0)``, central differences at
+the optimum); the bounds of the structure parameters have ``F``, the biases and initial
+states marginalised (Schur complement). They are honest when the innovations are white,
+which the result reports as the normalised autocorrelation of each whitened innovation at
+lags 1-10 (band ``2/sqrt(N)``).
+
+References
+----------
+Maine, R. E., Iliff, K. W., *Identification of Dynamic Systems: Applications to Aircraft.
+Part 1: The Output Error Approach*, AGARD-AG-300 Vol. 3, 1986; *Formulation and
+Implementation of a Practical Algorithm for Parameter Estimation with Process and
+Measurement Noise*, SIAM J. Appl. Math. 41(3), 1981.
+Jategaonkar, R. V., *Flight Vehicle System Identification*, 2nd ed., AIAA, 2015, ch. 5.
+Ljung, L., *System Identification: Theory for the User*, 2nd ed., Prentice Hall, 1999,
+ch. 4.3 (innovations form), 7 (prediction-error methods), 9 (asymptotic covariance).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import scipy.linalg
+import scipy.optimize
+import xarray as xr
+
+from sysid.core.errors import IdentificationError, InputDataError
+from sysid.identify.statistics import FitResultParameters, ParameterStatistics, parameter_statistics
+from sysid.identify.time_domain import (OutputErrorModel, _delayed, fitted_outputs,
+                                        prepare_records)
+from sysid.models import LinearStructure, propagate
+
+__all__ = ["FilterErrorResult", "identify_filter_error", "WHITENESS_LAGS"]
+
+#: Lags (samples) at which the whiteness of the innovations is reported.
+WHITENESS_LAGS = 10
+#: Whitened residual returned for every sample of a trial model whose Riccati equation has
+#: no stabilising solution (the solver then rejects the step).
+_FAILED_RESIDUAL = 1e6
+
+
+@dataclass
+class FilterErrorResult(FitResultParameters):
+    """Outcome of :func:`identify_filter_error`.
+
+    Attributes
+    ----------
+    model : xr.Dataset
+        Model Dataset (docs/data_model.md), ``method = "filter_error"``: the structure's
+        parameters with Cramer-Rao bounds from the innovations (process noise, biases and
+        initial states marginalised), plus ``gain``, ``process_noise``,
+        ``measurement_noise``, ``innovation_covariance`` and ``innovation_autocorrelation``.
+    structure : LinearStructure
+    theta : ndarray
+        Free structure parameters.
+    statistics : ParameterStatistics
+        Accuracy of ``theta`` (nuisance and process noise marginalised).
+    joint_statistics : ParameterStatistics
+        Joint statistics of ``theta``, the process-noise distribution ``F[<state>,<state>]``,
+        the measurement-noise std ``r_<output>`` (before the common scaling), biases ``bias_<output>[<record>]`` and initial states ``x0_<state>[<record>]``.
+    gain : xr.DataArray
+        Steady-state Kalman gain ``K`` (state, output) of the first record's sample interval.
+    process_noise : xr.DataArray
+        ``Q = F F^T`` (state, state_), per sample, analysis units squared.
+    process_noise_distribution : xr.DataArray
+        ``F`` (state, state_).
+    measurement_noise : xr.DataArray
+        ``R`` (output), diagonal: ``diag(Sigma - C P C^T)`` with the scaled process noise.
+    innovation_covariance : xr.DataArray
+        ``Sigma`` (output, output_).
+    whiteness : xr.DataArray
+        Normalised autocorrelation of the whitened innovations (output, lag), lags
+        1..:data:`WHITENESS_LAGS`, pooled over records; ``attrs["band"] = 2/sqrt(N)``.
+    cost : float
+        ``L`` at the optimum (``N/2 ln det Sigma + N p / 2``).
+    records, outputs : tuple of str
+    passes : int
+        Relaxation passes (LM solve, ``Sigma`` update).
+    n_cost_evaluations : int
+    cpu_time : float
+        CPU seconds of the fit (``time.process_time``).
+    """
+
+    model: xr.Dataset
+    structure: LinearStructure
+    theta: np.ndarray
+    statistics: ParameterStatistics
+    joint_statistics: ParameterStatistics
+    gain: xr.DataArray
+    process_noise: xr.DataArray
+    process_noise_distribution: xr.DataArray
+    measurement_noise: xr.DataArray
+    innovation_covariance: xr.DataArray
+    whiteness: xr.DataArray
+    cost: float
+    records: tuple
+    outputs: tuple
+    passes: int
+    n_cost_evaluations: int
+    cpu_time: float
+    full_statistics: ParameterStatistics | None = None
+
+    @property
+    def J(self) -> float:
+        """The cost (negative log-likelihood), named like the other fit results."""
+        return self.cost
+
+
+class _Predictor:
+    """Innovations of every record for a full parameter vector
+    ``beta = [theta, F entries, per record (biases, initial state)]`` at fixed ``R``."""
+
+    def __init__(self, structure, records, outputs, noise_mask, biases, initial_state):
+        self.structure = structure
+        self.records = records
+        self.oe = OutputErrorModel(structure, records, outputs, biases=False,
+                                   initial_state=False)  # for its input groups and ZOH
+        self.out_idx = self.oe.out_idx
+        self.f_rows, self.f_cols = np.nonzero(noise_mask)
+        self.biases, self.initial_state = biases, initial_state
+        self.n_theta = len(structure.free_index)
+        self.n, self.p = len(structure.states), len(outputs)
+        self.n_f = len(self.f_rows)
+        self.n_g = self.n_f + self.p - 1  # F entries and r_1 .. r_(p-1)
+        self.n_rec = (self.p if biases else 0) + (self.n if initial_state else 0)
+        self.n_beta = self.n_theta + self.n_g + len(records) * self.n_rec
+        self.whitener = np.eye(self.p)
+        self.r0 = 1.0  #: the measurement-noise std of the first output, held (scale of Q, R)
+        self.n_eval = 0
+        self._disc = (None, None)  #: (theta, discrete model) of the last evaluation
+
+    def names(self, outputs) -> list[str]:
+        st = self.structure
+        out = list(st.free_names)
+        out += [f"F[{st.states[i]},{st.states[j]}]" for i, j in zip(self.f_rows, self.f_cols)]
+        out += [f"r_{o}" for o in outputs[1:]]
+        for rec in self.records:
+            if self.biases:
+                out += [f"bias_{o}[{rec.name}]" for o in outputs]
+            if self.initial_state:
+                out += [f"x0_{s}[{rec.name}]" for s in st.states]
+        return out
+
+    def split(self, beta):
+        t = self.n_theta
+        theta = beta[:t]
+        F = np.zeros((self.n, self.n))
+        F[self.f_rows, self.f_cols] = beta[t:t + self.n_f]
+        R = np.concatenate([[self.r0], beta[t + self.n_f:t + self.n_g]]) ** 2
+        rest = beta[t + self.n_g:].reshape(len(self.records), self.n_rec)
+        nb = self.p if self.biases else 0
+        b = rest[:, :nb] if self.biases else np.zeros((len(self.records), self.p))
+        x0 = rest[:, nb:] if self.initial_state else np.zeros((len(self.records), self.n))
+        return theta, F, R, b, x0
+
+    def discrete(self, theta):
+        """``(groups, C, D, {dt: (Phi, Gamma)})`` at ``theta`` (the last one cached: the
+        difference steps in the other parameters keep theta)."""
+        if self._disc[0] is not None and np.array_equal(self._disc[0], theta):
+            return self._disc[1]
+        A, B, C, D, tau = self.structure.matrices(theta)
+        groups = self.oe.groups(tau)
+        Bg = np.stack([B[:, g.column] * g.rows for g in groups], axis=1)
+        disc = {}
+        for rec in self.records:
+            if rec.dt not in disc:
+                d = self.oe._discretise(A, Bg, rec.dt, False)
+                disc[rec.dt] = (d["Phi"], d["Gam"])
+        out = (groups, C[self.out_idx], D[self.out_idx], disc)
+        self._disc = (np.array(theta, float), out)
+        return out
+
+    def kalman(self, Phi, C, F, R):
+        """``(K, P)`` of the steady-state predictor; raises ``LinAlgError``/``ValueError``
+        when the Riccati equation has no stabilising solution."""
+        Q = F @ F.T + 1e-12 * np.eye(self.n)
+        P = scipy.linalg.solve_discrete_are(Phi.T, C.T, Q, np.diag(R))
+        K = Phi @ P @ C.T @ np.linalg.inv(C @ P @ C.T + np.diag(R))
+        if np.max(np.abs(np.linalg.eigvals(Phi - K @ C))) >= 1.0:
+            raise np.linalg.LinAlgError("unstable predictor")
+        return K, P
+
+    def innovations(self, beta) -> list[np.ndarray]:
+        """``e = z - y^`` per record (N, p); raises ``LinAlgError``/``ValueError`` when the
+        Riccati equation fails."""
+        self.n_eval += 1
+        theta, F, R, b, x0 = self.split(np.asarray(beta, float))
+        groups, C, D, disc = self.discrete(theta)
+        gains = {dt: self.kalman(Phi, C, F, R)[0] for dt, (Phi, _) in disc.items()}
+        out = []
+        for r, rec in enumerate(self.records):
+            Phi, Gam = disc[rec.dt]
+            K = gains[rec.dt]
+            V = np.stack([_delayed(rec.U[:, g.column], g.delay / rec.dt)[0] for g in groups],
+                         axis=1)
+            # x^[k+1] = (Phi - K C) x^[k] + Gamma v[k] + K (z[k] - D u[k] - b)
+            W = V @ Gam.T + (rec.Z - rec.U @ D.T - b[r]) @ K.T
+            X = propagate(Phi - K @ C, W, x0[r])
+            out.append(rec.Z - (X @ C.T + rec.U @ D.T + b[r]))
+        return out
+
+    def residuals(self, beta) -> np.ndarray:
+        try:
+            E = self.innovations(beta)
+        except (np.linalg.LinAlgError, ValueError):
+            size = sum(len(rec.time) for rec in self.records) * self.p
+            return np.full(size, _FAILED_RESIDUAL)
+        return np.concatenate([e @ self.whitener.T for e in E]).ravel()
+
+
+def _noise_mask(process_noise, n: int) -> np.ndarray:
+    if isinstance(process_noise, str):
+        if process_noise == "full":
+            return np.tril(np.ones((n, n), bool))
+        if process_noise == "diagonal":
+            return np.eye(n, dtype=bool)
+        raise InputDataError(f"process_noise must be 'full', 'diagonal' or a boolean "
+                             f"(state, state) mask of F, not {process_noise!r}")
+    mask = np.asarray(process_noise, bool)
+    if mask.shape != (n, n):
+        raise InputDataError(f"process_noise mask has shape {mask.shape}; expected "
+                             f"(states, states) = {(n, n)}")
+    return mask
+
+
+def _whiteness(E: list[np.ndarray], whitener: np.ndarray, lags: int) -> np.ndarray:
+    """Normalised autocorrelation (p, lags) of the whitened innovations, biased estimate,
+    pooled over records (no product spans two records)."""
+    p = E[0].shape[1]
+    num = np.zeros((p, lags))
+    den = np.zeros(p)
+    for e in E:
+        w = e @ whitener.T
+        w = w - w.mean(axis=0)
+        den += np.einsum("kj,kj->j", w, w)
+        for lag in range(1, lags + 1):
+            if lag < len(w):
+                num[:, lag - 1] += np.einsum("kj,kj->j", w[lag:], w[:-lag])
+    return num / den[:, None]
+
+
+def identify_filter_error(records, structure: LinearStructure, *,
+                          start: xr.Dataset | np.ndarray | None = None,
+                          outputs: Sequence[str] | None = None, process_noise="full",
+                          biases: bool = True, initial_state: bool = True,
+                          tol: float = 1e-8, max_passes: int = 30, cost_tol: float = 1e-3,
+                          max_nfev: int | None = None) -> FilterErrorResult:
+    """Identify a structure from time histories flown in turbulence by the filter-error
+    method (maximum likelihood with process and measurement noise; module docstring).
+
+    Minimises ``L = 1/2 sum_k e[k]^T Sigma^-1 e[k] + N/2 ln det Sigma`` over the structure's
+    free parameters ``theta``, the process-noise distribution ``F`` and the nuisance
+    parameters, ``e`` the innovations of the steady-state Kalman predictor
+    ``x^[k+1] = Phi x^[k] + Gamma v[k] + K e[k]``, ``K`` from the discrete Riccati equation.
+
+    Parameters
+    ----------
+    records : xr.Dataset or sequence of xr.Dataset
+        Time histories as for :func:`~sysid.identify.time_domain.identify_time_domain`.
+    structure : LinearStructure
+    start : xr.Dataset or array, optional
+        Start values of ``theta`` (model Dataset or free-parameter vector); default the
+        structure's.
+    outputs : sequence of str, optional
+        Fitted outputs (default: every structure output present in all records).
+    process_noise : {"full", "diagonal"} or bool array (state, state)
+        Estimated entries of ``F`` (``Q = F F^T``): lower triangle (any ``Q``), diagonal
+        (independent noise per state equation), or a mask.
+    biases, initial_state : bool
+        Estimate a bias per output and an initial predictor state per record.
+    tol : float
+        ``ftol = xtol = gtol`` of each Levenberg-Marquardt solve.
+    max_passes, cost_tol
+        Relaxation: at most ``max_passes`` (solve, ``Sigma`` update) cycles; stop
+        when ``L`` changes by less than ``cost_tol`` (absolute).
+    max_nfev : int, optional
+        Cost evaluations per solve (default scipy's).
+
+    Returns
+    -------
+    FilterErrorResult
+
+    Raises
+    ------
+    InputDataError
+        Records not usable (see :func:`~sysid.identify.time_domain.prepare_records`), a bad
+        ``process_noise``/``start``, or fewer than ten residuals per estimated parameter.
+    IdentificationError
+        No free parameters; no stabilising Kalman predictor at the start or the optimum
+        (``(Phi, C)`` not detectable); a singular innovation covariance.
+
+    References
+    ----------
+    Maine & Iliff 1981, 1986; Jategaonkar 2015, ch. 5; Ljung 1999, ch. 7.
+
+    Examples
+    --------
+    >>> result = identify_filter_error(records, structure, start=linearisation)
+    >>> result.model["value"].sel(parameter="N_r"), result.statistics.cramer_rao
+    >>> float(abs(result.whiteness).max()) <= 2 * result.whiteness.attrs["band"]
+    """
+    cpu0 = time.process_time()
+    if isinstance(records, xr.Dataset):
+        records = [records]
+    records = list(records)
+    if not records:
+        raise InputDataError("identify_filter_error: no records given")
+    outs = fitted_outputs(records, structure, outputs)
+    recs = prepare_records(records, structure, outs)
+    if len(structure.free_index) == 0:
+        raise IdentificationError(f"structure {structure.name!r} has no free parameters")
+    if start is None:
+        theta0 = structure.theta0
+    elif isinstance(start, xr.Dataset):
+        theta0 = structure.values_from_model(start)
+    else:
+        theta0 = np.asarray(start, float)
+        if theta0.shape != structure.theta0.shape:
+            raise InputDataError(f"start has {theta0.size} values; structure "
+                                 f"{structure.name!r} has {structure.theta0.size} free "
+                                 f"parameters {list(structure.free_names)}")
+    n = len(structure.states)
+    mask = _noise_mask(process_noise, n)
+    pred = _Predictor(structure, recs, outs, mask, biases, initial_state)
+    n_samples = sum(len(r.time) for r in recs)
+    p = len(outs)
+    if n_samples * p < 10 * pred.n_beta:
+        raise InputDataError(
+            f"identify_filter_error: {n_samples} samples x {p} outputs is fewer than ten "
+            f"residuals per estimated parameter ({pred.n_beta}: {pred.n_theta} structure, "
+            f"{pred.n_f} process noise, {pred.n_rec} per record)")
+    # Start: R from the first differences of the measurements (white noise doubles in a
+    # difference); F diagonal, a tenth of the difference std of each measured state (F = 0
+    # is a stationary point of L: the gain is quadratic in F). K depends on (Q, R) only up to
+    # a common factor: the first output's r is held at its start value.
+    dz = np.vstack([np.diff(r.Z, axis=0) for r in recs])
+    r_start = np.sqrt(np.maximum(0.5 * dz.var(axis=0), 1e-24))
+    pred.r0 = float(r_start[0])
+    F0 = np.zeros((n, n))
+    for j, o in enumerate(outs):
+        if o in structure.states:
+            i = structure.states.index(o)
+            F0[i, i] = 0.1 * dz[:, j].std()
+    F0[np.diag_indices(n)] = np.where(np.diag(F0) > 0, np.diag(F0),
+                                      max(1e-3, float(np.max(np.diag(F0)))))
+    beta = np.concatenate([theta0, F0[mask], r_start[1:], np.zeros(len(recs) * pred.n_rec)])
+    lo, hi = structure.bounds
+    lower = np.concatenate([lo, np.full(pred.n_beta - len(lo), -np.inf)])
+    upper = np.concatenate([hi, np.full(pred.n_beta - len(hi), np.inf)])
+    beta = np.clip(beta, lower, upper)
+
+    def innovations(b, where):
+        try:
+            E = pred.innovations(b)
+        except (np.linalg.LinAlgError, ValueError) as exc:
+            raise IdentificationError(
+                f"filter error: no stabilising steady-state Kalman predictor {where} "
+                f"(discrete Riccati equation: {exc}); is (Phi, C) detectable with the fitted "
+                f"outputs {list(outs)}?") from exc
+        Eall = np.vstack(E)
+        Sigma = Eall.T @ Eall / len(Eall)
+        sign, logdet = np.linalg.slogdet(Sigma)
+        if sign <= 0 or not np.isfinite(logdet):
+            raise IdentificationError(
+                f"filter error: innovation covariance singular {where} (outputs "
+                f"{list(outs)} linearly dependent or noise-free)")
+        return E, Sigma, 0.5 * n_samples * (logdet + p)
+
+    # MINPACK's Levenberg-Marquardt unless a parameter is bounded (free delays): then the
+    # bounded trust-region reflective solver
+    bounded = bool(np.any(np.isfinite(lower)) or np.any(np.isfinite(upper)))
+    method, bounds = ("trf", (lower, upper)) if bounded else ("lm", (-np.inf, np.inf))
+    E, Sigma, cost = innovations(beta, "at the start")
+    cost_prev, passes = math.inf, 0
+    for passes in range(1, max_passes + 1):
+        pred.whitener = np.linalg.inv(np.linalg.cholesky(Sigma))
+        sol = scipy.optimize.least_squares(pred.residuals, beta, method=method,
+                                           bounds=bounds, x_scale="jac", ftol=tol,
+                                           xtol=tol, gtol=tol, max_nfev=max_nfev)
+        beta = sol.x
+        E, Sigma, cost = innovations(beta, "at the end of a solve")
+        if abs(cost_prev - cost) < cost_tol:
+            break
+        cost_prev = cost
+    pred.whitener = np.linalg.inv(np.linalg.cholesky(Sigma))
+    names = pred.names(outs)
+    J = _central_jacobian(pred.residuals, beta, lower, upper)
+    joint = parameter_statistics(J, beta, names)
+    nt = pred.n_theta
+    Gt, Gn = J[:, :nt], J[:, nt:]
+    if Gn.shape[1]:
+        Q, _ = np.linalg.qr(Gn[:, np.linalg.norm(Gn, axis=0) > 0])
+        Gt = Gt - Q @ (Q.T @ Gt)
+    stats = parameter_statistics(Gt, beta[:nt], list(structure.free_names))
+    theta, F, R, _, _ = pred.split(beta)
+    _, C, _, disc = pred.discrete(theta)
+    K, P = pred.kalman(disc[recs[0].dt][0], C, F, R)
+    # (Q, R) are known up to a common factor: the one that matches the model's innovation
+    # variances C P C^T + R to the measured ones on average; R reported as what the scaled
+    # process noise leaves of Sigma (without process noise the shape of R is not identifiable)
+    scale = float(np.mean(np.diag(Sigma) / np.diag(C @ P @ C.T + np.diag(R))))
+    F = F * math.sqrt(scale)
+    R = np.maximum(np.diag(Sigma) - scale * np.diag(C @ P @ C.T), 0.0)
+    white = _whiteness(E, pred.whitener, WHITENESS_LAGS)
+    states = list(structure.states)
+    sc = {"state": states, "state_": states}
+    gain_da = xr.DataArray(K, dims=("state", "output"),
+                           coords={"state": states, "output": list(outs)}, name="gain",
+                           attrs={"dt": recs[0].dt})
+    q_da = xr.DataArray(F @ F.T, dims=("state", "state_"), coords=sc, name="process_noise")
+    f_da = xr.DataArray(F, dims=("state", "state_"), coords=sc,
+                        name="process_noise_distribution")
+    r_da = xr.DataArray(R, dims=("output",), coords={"output": list(outs)},
+                        name="measurement_noise")
+    sig_da = xr.DataArray(Sigma, dims=("output", "output_"),
+                          coords={"output": list(outs), "output_": list(outs)},
+                          name="innovation_covariance")
+    band = 2.0 / math.sqrt(n_samples)
+    white_da = xr.DataArray(white, dims=("output", "lag"),
+                            coords={"output": list(outs),
+                                    "lag": np.arange(1, WHITENESS_LAGS + 1)},
+                            name="innovation_autocorrelation", attrs={"band": band})
+    cpu = time.process_time() - cpu0
+    attrs = {
+        "method": "filter_error",
+        "estimator": "filter error (steady-state Kalman predictor, process noise Q = F F^T, "
+                     "R = diag(r^2), Riccati gain), relaxation: LM with Sigma fixed, then "
+                     "Sigma = mean e e^T",
+        "cost": float(cost),
+        "cost_definition": "negative log-likelihood 1/2 sum e^T Sigma^-1 e + N/2 ln det Sigma",
+        "records": ",".join(r.name for r in recs),
+        "fitted_outputs": ",".join(outs),
+        "n_samples": int(n_samples),
+        "process_noise_entries": json.dumps([[states[i], states[j]] for i, j in
+                                             zip(pred.f_rows, pred.f_cols)]),
+        "cramer_rao_convention": "M = sum S^T Sigma^-1 S of the innovations (process noise "
+                                 "and nuisance marginalised), CR = sqrt(diag M^-1)",
+        "sensitivities": "forward differences (solver), central differences (bounds)",
+        "passes": int(passes),
+        "n_cost_evaluations": int(pred.n_eval),
+        "cpu_time_s": float(cpu),
+        "whiteness_band": band,
+        "max_abs_autocorrelation": float(np.max(np.abs(white))),
+    }
+    model = structure.to_dataset(theta, stats, attrs=attrs)
+    for da in (gain_da, q_da, r_da, sig_da, white_da):
+        model[da.name] = da
+    return FilterErrorResult(model, structure, theta, stats, joint, gain_da, q_da, f_da, r_da,
+                             sig_da, white_da, float(cost), tuple(r.name for r in recs), outs,
+                             int(passes), int(pred.n_eval), float(cpu), full_statistics=stats)
+
+
+def _central_jacobian(fun, x, lower, upper) -> np.ndarray:
+    """Central-difference Jacobian (one-sided at a bound), relative step ``eps^(1/3)``."""
+    f0 = fun(x)
+    J = np.empty((f0.size, x.size))
+    h = np.finfo(float).eps ** (1 / 3) * np.maximum(1.0, np.abs(x))
+    for i in range(x.size):
+        xp, xm = x.copy(), x.copy()
+        xp[i] = min(x[i] + h[i], upper[i])
+        xm[i] = max(x[i] - h[i], lower[i])
+        J[:, i] = (fun(xp) - fun(xm)) / (xp[i] - xm[i])
+    return J
