@@ -27,6 +27,7 @@ from sysid.identify.reduction import (
 from sysid.identify.statistics import ParameterStatistics, correlated_pairs, parameter_statistics
 from sysid.identify.time_domain import (MAX_COST_INCREASE, OutputErrorModel, TimeFitResult,
                                         identify_time_domain)
+from sysid.identify.filter_error import FilterErrorResult, identify_filter_error  # noqa: F401
 
 __all__ = [
     "DEFAULT_PAIRS",
