@@ -37,7 +37,7 @@ Levenberg-Marquardt solve on the whitened innovations ``Sigma^-1/2 e`` with ``Si
 than ``cost_tol``.
 
 Accuracy: Cramer-Rao bounds from the innovations' information matrix
-``M = sum_k S[k]^T Sigma^-1 S[k]`` (``S = de/d(theta, F, b, x0)``, central differences at
+``M = sum_k S[k]^T Sigma^-1 S[k]`` (``S = de/d(theta, F, r, b, x0)``, central differences at
 the optimum); the bounds of the structure parameters have ``F``, the biases and initial
 states marginalised (Schur complement). They are honest when the innovations are white,
 which the result reports as the normalised autocorrelation of each whitened innovation at
@@ -45,10 +45,9 @@ lags 1-10 (band ``2/sqrt(N)``).
 
 References
 ----------
-Maine, R. E., Iliff, K. W., *Identification of Dynamic Systems: Applications to Aircraft.
-Part 1: The Output Error Approach*, AGARD-AG-300 Vol. 3, 1986; *Formulation and
-Implementation of a Practical Algorithm for Parameter Estimation with Process and
-Measurement Noise*, SIAM J. Appl. Math. 41(3), 1981.
+Maine, R. E., Iliff, K. W., "Formulation and Implementation of a Practical Algorithm for
+Parameter Estimation with Process and Measurement Noise", SIAM J. Appl. Math. 41(3), 1981;
+*Identification of Dynamic Systems: Applications to Aircraft*, AGARD-AG-300 Vol. 3, 1986.
 Jategaonkar, R. V., *Flight Vehicle System Identification*, 2nd ed., AIAA, 2015, ch. 5.
 Ljung, L., *System Identification: Theory for the User*, 2nd ed., Prentice Hall, 1999,
 ch. 4.3 (innovations form), 7 (prediction-error methods), 9 (asymptotic covariance).
@@ -101,7 +100,8 @@ class FilterErrorResult(FitResultParameters):
         Accuracy of ``theta`` (nuisance and process noise marginalised).
     joint_statistics : ParameterStatistics
         Joint statistics of ``theta``, the process-noise distribution ``F[<state>,<state>]``,
-        the measurement-noise std ``r_<output>`` (before the common scaling), biases ``bias_<output>[<record>]`` and initial states ``x0_<state>[<record>]``.
+        the measurement-noise std ``r_<output>`` (before the common scaling), biases
+        ``bias_<output>[<record>]`` and initial states ``x0_<state>[<record>]``.
     gain : xr.DataArray
         Steady-state Kalman gain ``K`` (state, output) of the first record's sample interval.
     process_noise : xr.DataArray
