@@ -180,6 +180,7 @@ def blas_threads(default: int = 1):
     to 10x slower (measured: a 19 s time-domain fit took 198 s). One thread per process is
     also what Dask workers want.
     """
+    import scipy.linalg  # noqa: F401  (scipy ships its own BLAS: load it so the limit reaches it)
     from threadpoolctl import threadpool_limits
 
     try:
