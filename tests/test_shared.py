@@ -1,6 +1,9 @@
 """Shared helpers: units, rigid-body kinematics, atomic writes, CLI error handling."""
 
 import math
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -132,3 +135,21 @@ def test_atomic_path_gives_the_permissions_open_would(tmp_path):
     with atomic_path(fresh) as tmp:
         tmp.write_text("y")
     assert stat.S_IMODE(fresh.stat().st_mode) == 0o640 and fresh.read_text() == "y"
+
+
+@pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="one core: every BLAS has one thread")
+def test_blas_threads_limits_every_blas_even_before_scipy_is_imported():
+    """numpy and scipy ship separate OpenBLAS builds; threadpoolctl limits only loaded ones.
+    Called first thing (as tests/conftest.py does), the limit must still reach scipy's."""
+    code = ("from sysid.core.util import blas_threads\n"
+            "limit = blas_threads()\n"
+            "import scipy.linalg\n"
+            "from threadpoolctl import threadpool_info\n"
+            "print(sorted({i['num_threads'] for i in threadpool_info()"
+            " if i['user_api'] == 'blas'}))\n")
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS",
+                        "SYSID_BLAS_THREADS")}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, check=True).stdout
+    assert out.strip() == "[1]", out
