@@ -93,7 +93,7 @@ def monte_carlo(seeds, **kw):
         cpu.append(fe.cpu_time)
         try:
             oe = identify_time_domain(recs, st, start=truth, reduce=False, tol=1e-6)
-        except (OverflowError, IdentificationError) as exc:  # counted, not hidden
+        except (OverflowError, ValueError, IdentificationError) as exc:  # counted, not hidden
             oe_failed.append((seed, repr(exc)))
             continue
         oe_est.append(oe.theta)
