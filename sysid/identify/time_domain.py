@@ -999,15 +999,23 @@ def _converge(structure: LinearStructure, records: list[TimeRecord], outputs, th
             R, chain = np.exp(_aitken(*chain)), []
     model.set_sigma(np.sqrt(R))
     ev = model.evaluate(theta, jacobian=True)
+    stats = _end_statistics(model, theta, ev, counter, outer)
+    return _Converged(structure, theta, R, cost, stats, ev, outer, nfev, history,
+                      tuple(outputs))
+
+
+def _end_statistics(model: OutputErrorModel, theta: np.ndarray, ev: _Evaluation,
+                    counter: dict, outer: int) -> ParameterStatistics:
+    """Cramer-Rao statistics at a fit's end point ``ev``; adds the model's evaluations and
+    the solves (``outer``) to ``counter``."""
     if len(theta):
-        stats = parameter_statistics(ev.jacobian, theta, structure.free_names)
+        stats = parameter_statistics(ev.jacobian, theta, model.structure.free_names)
     else:
         stats = parameter_statistics(np.zeros((1, 0)), theta, ())
     counter["cost"] += model.n_cost
     counter["jacobian"] += model.n_jac
     counter["outer"] += outer
-    return _Converged(structure, theta, R, cost, stats, ev, outer, nfev, history,
-                      tuple(outputs))
+    return stats
 
 
 def _converge_profile(model: OutputErrorModel, theta: np.ndarray, *, R0: np.ndarray | None,
@@ -1047,15 +1055,8 @@ def _converge_profile(model: OutputErrorModel, theta: np.ndarray, *, R0: np.ndar
             break
         model.secant = None  # trf stopped on its own tolerances short of settling: again
     ev = model.evaluate(theta, jacobian=True)
-    structure = model.structure
-    if len(theta):
-        stats = parameter_statistics(ev.jacobian, theta, structure.free_names)
-    else:
-        stats = parameter_statistics(np.zeros((1, 0)), theta, ())
-    counter["cost"] += model.n_cost
-    counter["jacobian"] += model.n_jac
-    counter["outer"] += outer
-    return _Converged(structure, theta, ev.R, ev.cost, stats, ev, outer, model.n_cost,
+    stats = _end_statistics(model, theta, ev, counter, outer)
+    return _Converged(model.structure, theta, ev.R, ev.cost, stats, ev, outer, model.n_cost,
                       history, tuple(model.outputs))
 
 
