@@ -126,10 +126,12 @@ def _n_seeds(default: int) -> int:
 def test_closed_loop_turbulence_filter_error_is_unbiased_and_its_bounds_honest():
     """8 seeds (40 under SYSID_EXHAUSTIVE=1), pitch-rate loop on the measured q, gust
     10 ft/s per sample. Measured, 8 seeds: filter error's mean error 0.04-0.52 scatters,
-    scatter / mean bound 0.99-1.35; output error's mean error 2.25 (Z_w) and 2.09 (Z_lon)
-    scatters, scatter / mean corrected bound 2.1-21.5. 40 seeds: filter error 0.09-0.75
-    scatters, ratio 0.93-1.17; output error up to 1.68 scatters (Z_lon), ratio 1.78-20.4
-    (median 2.5; one of its fits raised OverflowError). About 1 s CPU per filter-error fit."""
+    scatter / mean bound 0.99-1.35; output error's mean error up to 6.31 (Z_w), 3.66 (M_w)
+    and 2.70 (Z_lon) scatters, scatter / mean corrected bound 0.62-3.54. 40 seeds: filter
+    error 0.09-0.75 scatters, ratio 0.93-1.17; output error 2.13 (Z_lon) and 2.11 (M_w)
+    scatters, ratio 0.82-1.97: output error is biased under the loop, its corrected bound
+    is not reliably over-confident, so only its bias is asserted. About 1 s CPU per
+    filter-error fit."""
     names, out = monte_carlo(range(_n_seeds(8)), gust=MC_GUST, rate_gain=MC_RATE_GAIN)
     report = _report(names, out)
     print(report)
@@ -137,7 +139,6 @@ def test_closed_loop_turbulence_filter_error_is_unbiased_and_its_bounds_honest()
     assert np.all(np.abs(fe["bias"]) < 1.0), report
     assert np.all((fe["ratio"] >= GOAL[0]) & (fe["ratio"] <= GOAL[1])), report
     assert np.max(np.abs(oe["bias"])) > 1.5, report
-    assert np.median(oe["ratio"]) > 2.0, report
 
 
 @pytest.mark.slow

@@ -222,6 +222,27 @@ def test_profile_solve_reaches_the_relaxation_s_fixed_point(clean_records, monke
     np.testing.assert_allclose(list(profile.noise_variance.values()), rms ** 2, rtol=1e-8)
 
 
+@pytest.mark.parametrize("seed, duration", [(7, 100.0), (20, 25.0)])
+def test_profile_solve_that_wanders_off_falls_back_to_the_relaxation(monkeypatch, seed,
+                                                                     duration):
+    """Turbulence under a pitch-rate damper (tests/test_identify_filter_error.py's system):
+    on these records the profile solve stepped into unstable models (it raised
+    OverflowError / ValueError, and once guarded ended at L = 3.6e6 against the relaxation's
+    -216). The fit must end where the relaxation ends, not above it."""
+    import sysid.identify.time_domain as td
+    from test_identify_filter_error import records, structure
+
+    st = structure()
+    recs = records(seed, gust=10.0, rate_gain=1.0, duration=duration)
+    fit = identify_time_domain(recs, st, start=st.theta0, reduce=False, tol=1e-6, quiet=True)
+    monkeypatch.setattr(td, "PROFILE", False)
+    relaxed = identify_time_domain(recs, st, start=st.theta0, reduce=False, tol=1e-6,
+                                   quiet=True)
+    assert fit.cost <= relaxed.cost + td.COST_SETTLED, (fit.cost, relaxed.cost)
+    z = (fit.theta - relaxed.theta) / relaxed.statistics.cramer_rao
+    assert np.max(np.abs(z)) < 0.05, dict(zip(st.free_names, np.round(z, 3)))
+
+
 def test_profile_model_matrix_is_the_exact_hessian_of_a_linear_problem():
     """With only C and D entries free and biases as the only nuisance, the residuals are
     linear in theta; then the Gauss-Newton matrix of the profile likelihood

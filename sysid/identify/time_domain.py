@@ -741,6 +741,8 @@ class OutputErrorModel:
         d = np.where(d > 0, d, 1.0)
 
         def factor(B):  # (q, R_B), or None where B is not safely positive definite
+            if not np.all(np.isfinite(B)):
+                return None
             try:
                 U = scipy.linalg.cholesky(B / np.outer(d, d), lower=False)
             except np.linalg.LinAlgError:
@@ -785,7 +787,7 @@ class OutputErrorModel:
         try:
             Lw = scipy.linalg.cholesky(np.eye(int(free.sum())) - scale * M[np.ix_(free, free)],
                                        lower=True)
-        except np.linalg.LinAlgError:
+        except (np.linalg.LinAlgError, ValueError):  # not positive definite, or not finite
             return None
         return math.sqrt(scale) * scipy.linalg.solve_triangular(Lw, U[free], lower=True)
 
@@ -799,21 +801,22 @@ def _secant_update(state, theta: np.ndarray, gradient: np.ndarray,
     """The structured secant matrix ``S`` at ``theta`` from ``state = (theta_a, g_a, S_a)``
     of the last accepted iterate: ``(H + S) s = y`` (``s = theta - theta_a``, ``y`` the
     change of the gradient) by the symmetric rank-2 update of NL2SOL (Dennis, Gay & Welsch
-    1981, with its sizing of ``S_a``); ``S_a`` itself when ``y^T s <= 0``; None without a
-    state."""
+    1981, with its sizing of ``S_a``); ``S_a`` itself when ``y^T s <= 0`` or the update is not
+    finite (a step into a violently unstable model); None without a state."""
     if state is None:
         return None
-    theta_a, g_a, S = state
+    theta_a, g_a, S_a = state
     s, y = theta - theta_a, gradient - g_a
-    ys = float(y @ s)
-    if not np.any(s) or ys <= 0.0:
-        return S
-    y_sharp = y - H @ s
-    sSs = float(s @ S @ s)
-    if sSs != 0.0:
-        S = S * min(1.0, abs(float(s @ y_sharp)) / abs(sSs))
-    v = y_sharp - S @ s
-    return S + (np.outer(v, y) + np.outer(y, v)) / ys - float(v @ s) * np.outer(y, y) / ys ** 2
+    with np.errstate(over="ignore", invalid="ignore"):
+        ys = np.float64(y @ s)
+        if not np.any(s) or not ys > 0.0 or not np.isfinite(ys):
+            return S_a
+        y_sharp = y - H @ s
+        sSs = np.float64(s @ S_a @ s)
+        S = S_a * min(1.0, abs(s @ y_sharp) / abs(sSs)) if sSs != 0.0 else S_a
+        v = y_sharp - S @ s
+        S = S + (np.outer(v, y) + np.outer(y, v)) / ys - (v @ s) * np.outer(y, y) / ys ** 2
+    return S if np.all(np.isfinite(S)) else S_a
 
 
 class _Stop(Exception):
@@ -938,24 +941,39 @@ def _solve(model: OutputErrorModel, theta0, *, tol: float, max_nfev: int | None,
 def _converge(structure: LinearStructure, records: list[TimeRecord], outputs, theta0, *,
               R0: np.ndarray | None, biases: bool, initial_state: bool, tol: float,
               max_nfev: int | None, max_outer: int, r_tol: float, cost_tol: float,
-              counter: dict, deadline: Deadline | None = None) -> _Converged:
+              counter: dict, deadline: Deadline | None = None,
+              profile: bool | None = None) -> _Converged:
     """Relaxation (Jategaonkar 2015 sec. 4.6): LM on theta with R fixed, then R from the
-    residuals, until R and the cost settle; with :data:`PROFILE`, until R changes by less
-    than :data:`PROFILE_R_CHANGE`, then :func:`_converge_profile` (at once when the start's
-    residuals fit a given ``R0`` that well: most of the reduction's refits)."""
+    residuals, until R and the cost settle; with ``profile`` (default :data:`PROFILE`),
+    until R changes by less than :data:`PROFILE_R_CHANGE`, then :func:`_converge_profile`
+    (at once when the start's residuals fit a given ``R0`` that well: most of the
+    reduction's refits). A profile solve that ends above the likelihood it started from (it
+    wandered into unstable models) is discarded and the relaxation goes on from there."""
+    profile = PROFILE if profile is None else profile
+    kw = dict(biases=biases, initial_state=initial_state, tol=tol, max_nfev=max_nfev,
+              r_tol=r_tol, cost_tol=cost_tol, counter=counter, deadline=deadline)
+
+    def handed_over(theta, R, cost, **solve):
+        conv = _converge_profile(model, theta, R0=R, tol=tol, max_nfev=max_nfev,
+                                 counter=counter, deadline=deadline, **solve)
+        if np.isfinite(conv.cost) and conv.cost <= cost + COST_SETTLED:
+            return conv
+        return _converge(structure, records, outputs, theta, R0=R,
+                         max_outer=solve["max_outer"], profile=False, **kw)
+
     model = OutputErrorModel(structure, records, outputs, biases=biases,
                              initial_state=initial_state)
     floor = R_FLOOR * np.maximum(np.var(np.vstack([r.Z for r in records]), axis=0), 1e-12)
     model.floor = floor
     theta = np.asarray(theta0, float).copy()
-    if PROFILE and R0 is not None:
+    if profile and R0 is not None:
         # a refit: straight to the profile solve when its start's residuals still fit R0
         model.set_sigma(np.sqrt(R0))
-        R_start = _noise_variance(model.evaluate(theta).errors, floor)
+        errors = model.evaluate(theta).errors
+        R_start = _noise_variance(errors, floor)
         if np.max(np.abs(R_start / R0 - 1.0)) < PROFILE_R_CHANGE:
-            return _converge_profile(model, theta, R0=R0, tol=tol, max_nfev=max_nfev,
-                                     max_outer=max_outer, counter=counter,
-                                     deadline=deadline, history=[], outer=0)
+            return handed_over(theta, R0, _likelihood(errors, R_start), max_outer=max_outer,
+                               history=[], outer=0)
     if R0 is None:  # start weights: the residuals of the start model (unit weights first)
         R0 = _noise_variance(model.evaluate(theta).errors, floor)
     R = np.asarray(R0, float).copy()
@@ -990,10 +1008,9 @@ def _converge(structure: LinearStructure, records: list[TimeRecord], outputs, th
         R, cost = R_new, new_cost
         if done:
             break
-        if PROFILE and change < PROFILE_R_CHANGE and outer < max_outer:
-            return _converge_profile(model, theta, R0=R, tol=tol, max_nfev=max_nfev,
-                                     max_outer=max_outer - outer, counter=counter,
-                                     deadline=deadline, history=history, outer=outer)
+        if profile and change < PROFILE_R_CHANGE and outer < max_outer:
+            return handed_over(theta, R, cost, max_outer=max_outer - outer, history=history,
+                               outer=outer)
         chain = (chain or [np.log(R_in)]) + [np.log(R_new)] if full_solve else []
         if len(chain) == 3 and outer < max_outer and AITKEN:
             R, chain = np.exp(_aitken(*chain)), []
