@@ -208,6 +208,7 @@ def test_profile_solve_reaches_the_relaxation_s_fixed_point(clean_records, monke
     else:
         st, records = _coloured_short_period(1)
         start = st.theta0 * 1.3
+    monkeypatch.setattr(td, "PROFILE", True)
     profile = identify_time_domain(records, st, start=start, reduce=False)
     monkeypatch.setattr(td, "PROFILE", False)
     monkeypatch.setattr(td, "EARLY_NFEV", 10_000)
@@ -234,6 +235,7 @@ def test_profile_solve_that_wanders_off_falls_back_to_the_relaxation(monkeypatch
 
     st = structure()
     recs = records(seed, gust=10.0, rate_gain=1.0, duration=duration)
+    monkeypatch.setattr(td, "PROFILE", True)
     fit = identify_time_domain(recs, st, start=st.theta0, reduce=False, tol=1e-6, quiet=True)
     monkeypatch.setattr(td, "PROFILE", False)
     relaxed = identify_time_domain(recs, st, start=st.theta0, reduce=False, tol=1e-6,
