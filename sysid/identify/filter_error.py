@@ -69,8 +69,7 @@ import xarray as xr
 from sysid.core.errors import IdentificationError, InputDataError
 from sysid.core.util import blas_threads
 from sysid.identify.statistics import FitResultParameters, ParameterStatistics, parameter_statistics
-from sysid.identify.time_domain import (OutputErrorModel, _delayed, fitted_outputs,
-                                        prepare_records)
+from sysid.identify.time_domain import OutputErrorModel, _delayed, fit_inputs
 from sysid.models import LinearStructure, propagate
 
 __all__ = ["FilterErrorResult", "identify_filter_error", "WHITENESS_LAGS"]
@@ -352,15 +351,8 @@ def identify_filter_error(records, structure: LinearStructure, *,
 def _fit(records, structure, *, start, outputs, process_noise, biases, initial_state, tol,
          max_passes, cost_tol, max_nfev) -> FilterErrorResult:
     cpu0 = time.process_time()
-    if isinstance(records, xr.Dataset):
-        records = [records]
-    records = list(records)
-    if not records:
-        raise InputDataError("identify_filter_error: no records given")
-    outs = fitted_outputs(records, structure, outputs)
-    recs = prepare_records(records, structure, outs)
-    if len(structure.free_index) == 0:
-        raise IdentificationError(f"structure {structure.name!r} has no free parameters")
+    records, outs, recs = fit_inputs(records, structure, outputs,
+                                     what="identify_filter_error")
     if start is None:
         theta0 = structure.theta0
     elif isinstance(start, xr.Dataset):

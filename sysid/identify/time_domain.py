@@ -230,6 +230,20 @@ def fitted_outputs(records: Sequence[xr.Dataset], structure: LinearStructure,
     return outs
 
 
+def fit_inputs(records, structure: LinearStructure, outputs, *, what: str
+               ) -> tuple[list[xr.Dataset], list[str], list[TimeRecord]]:
+    """``(records, outputs, prepared records)`` of a time-domain fit (one Dataset or a
+    sequence); refuses no records and a structure without free parameters, naming ``what``."""
+    records = [records] if isinstance(records, xr.Dataset) else list(records)
+    if not records:
+        raise InputDataError(f"{what}: no records given")
+    outs = fitted_outputs(records, structure, outputs)
+    recs = prepare_records(records, structure, outs)
+    if len(structure.free_index) == 0:
+        raise IdentificationError(f"structure {structure.name!r} has no free parameters")
+    return records, outs, recs
+
+
 def prepare_records(records: Sequence[xr.Dataset], structure: LinearStructure,
                     outputs: Sequence[str]) -> list[TimeRecord]:
     """Check the time histories and turn them into perturbation arrays.
@@ -1306,15 +1320,8 @@ def identify_time_domain(records, structure: LinearStructure, *,
     """
     t_start = time.perf_counter()
     progress = progress or Progress(quiet=quiet)
-    if isinstance(records, xr.Dataset):
-        records = [records]
-    records = list(records)
-    if not records:
-        raise InputDataError("identify_time_domain: no records given")
-    outs = fitted_outputs(records, structure, outputs)
-    recs = prepare_records(records, structure, outs)
-    if len(structure.free_index) == 0:
-        raise IdentificationError(f"structure {structure.name!r} has no free parameters")
+    records, outs, recs = fit_inputs(records, structure, outputs,
+                                     what="identify_time_domain")
     if start is None:
         theta0, start_kind = structure.theta0, "structure"
     elif isinstance(start, xr.Dataset):
