@@ -58,6 +58,14 @@ def _jacobian_timings(records, st) -> dict:
             "n_parameters": len(theta)}
 
 
+def _timed_fit(label: str, suffix: str, clock, records, st, **fit) -> dict:
+    """``{label + suffix: seconds on clock, label_cost_evaluations: n}`` of one fit."""
+    t0 = clock()
+    result = identify_time_domain(records, st, **fit)
+    return {f"{label}{suffix}": clock() - t0,
+            f"{label}_cost_evaluations": result.n_cost_evaluations}
+
+
 def _relaxation_timings(records, st, start) -> dict:
     """The same fit (no reduction) by the relaxation to the end, with the early weighted
     solves capped (the default) and converged every time (the baseline, as before the
@@ -69,10 +77,8 @@ def _relaxation_timings(records, st, start) -> dict:
         td.PROFILE = False
         for label, cap in (("uncapped", 10**9), ("capped", default)):
             td.EARLY_NFEV = cap
-            t0 = time.perf_counter()
-            result = identify_time_domain(records, st, start=start, reduce=False)
-            out[f"relaxation_{label}_s"] = time.perf_counter() - t0
-            out[f"relaxation_{label}_cost_evaluations"] = result.n_cost_evaluations
+            out.update(_timed_fit(f"relaxation_{label}", "_s", time.perf_counter, records, st,
+                                  start=start, reduce=False))
     finally:
         td.EARLY_NFEV, td.PROFILE = default, DEFAULT_PROFILE
     out["relaxation_speedup_ratio"] = out["relaxation_uncapped_s"] / out["relaxation_capped_s"]
@@ -119,16 +125,14 @@ def test_bench_identify_time_domain(benchmark):
 
 def _profile_timings(records, st, start) -> dict:
     """The same fit with reduction by the relaxation to the end (``PROFILE = False``, the
-    estimator before the profile solve) and by the default (relaxation, then the profile
-    likelihood): CPU seconds and cost evaluations."""
+    default) and with the profile solve (relaxation, then the profile likelihood): CPU
+    seconds and cost evaluations."""
     out = {}
     try:
         for label, on in (("relaxation", False), ("profile", True)):
             time_domain.PROFILE = on
-            c0 = time.process_time()
-            result = identify_time_domain(records, st, start=start, reduce=True)
-            out[f"{label}_cpu_s"] = time.process_time() - c0
-            out[f"{label}_cost_evaluations"] = result.n_cost_evaluations
+            out.update(_timed_fit(label, "_cpu_s", time.process_time, records, st,
+                                  start=start, reduce=True))
     finally:
         time_domain.PROFILE = DEFAULT_PROFILE
     out["profile_speedup_cpu"] = out["relaxation_cpu_s"] / out["profile_cpu_s"]
