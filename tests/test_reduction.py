@@ -6,7 +6,8 @@ import scipy.optimize
 
 from sysid.identify.least_squares import compress
 from sysid.identify.reduction import (STOPPED_ABOVE_CEILING, FitOutcome, StoppedAboveCeiling,
-                                      ceiling_watch, refusal_certain, stepwise_reduction)
+                                      ceiling_watch, conditional_start, refusal_certain,
+                                      stepwise_reduction)
 from sysid.identify.statistics import parameter_statistics
 
 
@@ -101,3 +102,33 @@ def test_early_refusal_keeps_the_decisions_and_saves_evaluations():
         assert not any(s.converged for s in early.steps if not s.accepted)
         assert evaluations[True] < evaluations[False]
     assert refused  # the small parameter's removal was tried and undone
+
+
+def test_conditional_start_is_the_refit_minimum_of_a_linear_problem():
+    """For a linear least-squares problem the conditional start is the refit's minimum
+    itself: the least-squares solution with the removed column deleted (closed form, from
+    numpy's lstsq, not from the statistics)."""
+    for seed in range(5):
+        X, y, names = _problem(seed)
+        X = X + 0.6 * X[:, [2]]  # correlate every column with "c"
+        X[:, 2] /= 1.6
+        full = np.linalg.lstsq(X, y, rcond=None)[0]
+        stats = parameter_statistics(X / 0.5, full, names)
+        for j, name in enumerate(names):
+            rest = [n for n in names if n != name]
+            keep = [k for k in range(len(names)) if k != j]
+            truth = np.linalg.lstsq(X[:, keep], y, rcond=None)[0]
+            start = conditional_start(stats, name, rest)
+            plain = full[keep]
+            np.testing.assert_allclose(start, truth, rtol=1e-9, atol=1e-12)
+            # and the plain start is measurably elsewhere wherever the columns correlate
+            assert np.max(np.abs(plain - truth)) > 1e-3 * np.max(np.abs(truth))
+
+
+def test_conditional_start_keeps_the_estimates_where_the_covariance_is_not_finite():
+    X, y, names = _problem(0)
+    full = np.linalg.lstsq(X, y, rcond=None)[0]
+    stats = parameter_statistics(X, full, names)
+    stats.covariance[:, 1] = np.inf
+    start = conditional_start(stats, "b", ("a", "c", "d", "e"))
+    np.testing.assert_array_equal(start, full[[0, 2, 3, 4]])

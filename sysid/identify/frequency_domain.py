@@ -93,7 +93,8 @@ from sysid.core.guidelines import COHERENCE_MIN, FIT_TIME_LIMIT_S
 from sysid.identify.least_squares import compress
 from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
                                       STOPPED_ABOVE_CEILING, StoppedAboveCeiling,
-                                      ceiling_watch, stepwise_reduction)
+                                      ceiling_watch, conditional_start,
+                                      stepwise_reduction)
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters,
                                       ParameterStatistics, coloured_residual_covariance,
                                       on_parameters, parameter_rows, parameter_statistics,
@@ -138,6 +139,10 @@ N_POINTS = 20  #: frequency points per pair (docs/methods.md)
 #: is then known to about 1 / sqrt(2 (draws - 1)), i.e. 16 %, like a 20-seed Monte Carlo, and
 #: a jump of the estimate that one re-selection in ten causes is seen with probability 0.88.
 SELECTION_DRAWS = 20
+#: Reduction refits start at the conditional minimum of the last fit's quadratic model
+#: (:func:`sysid.identify.reduction.conditional_start`; False: at the other estimates
+#: unchanged, as before).
+CONDITIONAL_START = True
 #: A free parameter has "run away" when the fit ends with it this many times larger than its
 #: start value (and than 1 in analysis units) and its Cramer-Rao bound is unbounded or above
 #: :data:`RUNAWAY_CR_PERCENT`: the optimiser slid along a valley in which only ratios are
@@ -1144,8 +1149,11 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
         def refit(removed, previous, ceiling):
             prev: _Converged = previous.payload
             st = structure.fix(removed, 0.0)
-            start_vals = dict(zip(prev.structure.free_names, prev.theta))
-            th0 = np.array([start_vals[n] for n in st.free_names])
+            if CONDITIONAL_START:
+                th0 = conditional_start(prev.statistics, removed[-1], st.free_names)
+            else:
+                start_vals = dict(zip(prev.structure.free_names, prev.theta))
+                th0 = np.array([start_vals[n] for n in st.free_names])
             c = _converge(st, data, th0, ceiling=ceiling, **kw)
             return FitOutcome(c.J_ave, c.statistics, c,
                               converged=c.status != STOPPED_ABOVE_CEILING)

@@ -42,7 +42,7 @@ from sysid.identify.statistics import ParameterStatistics, format_percent
 
 __all__ = ["FitOutcome", "ReductionStep", "ReductionResult", "stepwise_reduction",
            "refusal_certain", "ceiling_watch", "StoppedAboveCeiling", "REFUSAL_MARGIN",
-           "STOPPED_ABOVE_CEILING", "GUIDELINES"]
+           "STOPPED_ABOVE_CEILING", "GUIDELINES", "conditional_start"]
 
 #: Early refusal of a trial refit (:func:`refusal_certain`): the cost must lie above the
 #: ceiling by more than this many times the whole decrease the fit's Gauss-Newton model still
@@ -192,6 +192,42 @@ def ceiling_watch(compressed: Callable[[np.ndarray], tuple[np.ndarray, np.ndarra
             raise StoppedAboveCeiling(theta, cost, ceiling)
         return J
     return jacobian
+
+
+def conditional_start(statistics: ParameterStatistics, removed: str,
+                      names: Sequence[str]) -> np.ndarray:
+    """Start of the refit without ``removed``: the other estimates moved to where the last
+    fit's quadratic model has its minimum with ``removed`` held at zero.
+
+    ``theta_r - Sigma_rj / Sigma_jj * theta_j`` (the conditional mean of a Gaussian with
+    covariance ``Sigma = H^-1``; equivalently ``theta_r - H_rr^-1 H_rj theta_j``). A plain
+    start (the others unchanged) begins the refit as far from its optimum as the removed
+    parameter's correlations reach. Any scale of ``Sigma`` cancels. Falls back to the plain
+    start where ``Sigma`` is not finite.
+
+    Parameters
+    ----------
+    statistics : ParameterStatistics
+        Of the last accepted fit (``names``, ``values``, ``covariance``).
+    removed : str
+        The parameter now fixed at zero.
+    names : sequence of str
+        Free parameters of the refit, in its order.
+
+    Returns
+    -------
+    ndarray (len(names),)
+    """
+    index = {n: i for i, n in enumerate(statistics.names)}
+    keep = np.array([index[n] for n in names], dtype=int)
+    theta = np.asarray(statistics.values, float)
+    j = index[removed]
+    S = np.asarray(statistics.covariance, float)
+    start = theta[keep].copy()
+    column = S[keep, j]
+    if np.isfinite(S[j, j]) and S[j, j] > 0 and np.all(np.isfinite(column)):
+        start -= column / S[j, j] * theta[j]
+    return start
 
 
 def stepwise_reduction(fit: Callable[..., FitOutcome],

@@ -34,12 +34,15 @@ evaluation: gradient ``J^T R^-1 e`` (the weighted problem's), model matrix the G
 matrix of ``L_p`` (``J^T R^-1 J`` less the coupling of theta and R; the relaxation ignores
 it and converges linearly) plus a structured secant estimate of the residuals'
 second-order terms (Dennis, Gay & Welsch 1981), until the model predicts less than
-:data:`PROFILE_SETTLED` of further decrease. The same maximum-likelihood point in about a
+:data:`SOLVE_SETTLED` of further decrease. The same maximum-likelihood point in about a
 third of the evaluations on the hover study, but not on every data set
 (docs/notes/2026-11-26-profile-likelihood.md). ``PROFILE = False`` (the default) keeps the
 relaxation to the end: repeated until the relative changes of every ``R_jj`` and
 of ``L`` are below ``r_tol``/``cost_tol``, every third R extrapolated by Aitken's
-delta-squared step once its solves converge fully. The solver is given each problem
+delta-squared step once its solves converge fully; a solve at fixed R ends where its
+Gauss-Newton model predicts less than :data:`SOLVE_SETTLED` of further decrease. A
+reduction refit starts at the conditional minimum of the last fit's quadratic model
+(:func:`sysid.identify.reduction.conditional_start`). The solver is given each problem
 compressed to ``n_theta + 1`` rows (``J = Q R_J``; residual ``[Q^T r, |r - Q Q^T r|]``,
 Jacobian ``[R_J; 0]``; for the profile, ``R_B^T R_B`` the model matrix): the same cost,
 gradient and quadratic models, without factorising the tall Jacobian at every iteration.
@@ -114,7 +117,8 @@ from sysid.core.util import Deadline, Progress
 from sysid.data.campaign import record_trim
 from sysid.data.importers import validate_time_history
 from sysid.identify.least_squares import compress, triangle
-from sysid.identify.reduction import GUIDELINES, FitOutcome, ReductionResult, stepwise_reduction
+from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
+                                     conditional_start, stepwise_reduction)
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters,
                                       ParameterStatistics, coloured_residual_covariance,
                                       on_parameters, parameter_rows, parameter_statistics,
@@ -139,6 +143,11 @@ R_FLOOR = 1e-14
 #: Relaxation: cost evaluations allowed per weighted solve while R still changes by more than
 #: EARLY_R_CHANGE (relative) between outer iterations (see ``_converge``).
 EARLY_NFEV = 3
+
+#: A reduction refit starts from the last fit's quadratic model with the removed parameter
+#: at zero (:func:`sysid.identify.reduction.conditional_start`), not from its other
+#: estimates unchanged.
+CONDITIONAL_START = True
 EARLY_R_CHANGE = 0.02
 #: Relaxation: a change of the negative log-likelihood this small (absolute) counts as
 #: settled whatever ``cost_tol`` says. Weakly determined parameters let successive converged
@@ -167,9 +176,14 @@ CONSISTENT_MAX_ITER = 50
 #: passes; the profile solve takes over from there (at once in a refit whose start's
 #: residuals are that close to the previous fit's R).
 PROFILE_R_CHANGE = 0.1
-#: The profile solve stops at an iterate where its Gauss-Newton model predicts a decrease of
-#: the negative log-likelihood below this (``1/2 g^T H^-1 g``): 1/10 of COST_SETTLED.
-PROFILE_SETTLED = 1e-3
+#: A solve (the relaxation's at fixed R, or the profile solve) stops at an iterate where its
+#: Gauss-Newton model predicts a decrease of the negative log-likelihood below this
+#: (``1/2 g^T H^-1 g``): 1/10 of COST_SETTLED, i.e. about 0.045 Cramer-Rao bounds from the
+#: solve's minimum.
+SOLVE_SETTLED = 1e-3
+#: The relaxation's solves stop at SOLVE_SETTLED (False: on the solver's own tolerances
+#: ``tol``, as before; the benchmark's baseline).
+RELAXATION_SETTLES = True
 #: Simulated (whitened) values beyond this count as a diverged trial model.
 _HUGE = 1e100
 
@@ -357,6 +371,7 @@ class OutputErrorModel:
         self.floor = np.zeros(len(self.outputs))  #: floor of the noise variances
         self.anchor = None  #: cost offset of the profile problem handed to the solver
         self.secant = None  #: (theta, gradient, S) at the profile solve's last accepted iterate
+        self.settle = False  #: the relaxation's solve stops at SOLVE_SETTLED
         self.n_cost = 0
         self.n_jac = 0
         self._cache: _Evaluation | None = None
@@ -681,7 +696,18 @@ class OutputErrorModel:
         return self._compressed(theta)[0]
 
     def compressed_jacobian(self, theta):
-        return self._compressed(theta)[1]
+        """``[R_J; 0]`` (:meth:`compressed_residuals`). The solver asks for it at each
+        accepted iterate; with ``self.settle`` it raises ``_Settled`` there when the
+        Gauss-Newton model predicts less than :data:`SOLVE_SETTLED` of further decrease."""
+        ev = self.evaluate(theta, jacobian=True)
+        f, J = self._compressed(theta)
+        if self.settle and np.all(np.isfinite(f)):
+            RJ = J[:-1]
+            ev.decrease = _predicted_decrease(self.structure, ev.theta, RJ.T @ f[:-1],
+                                              RJ.T @ RJ, 0.5 * float(f[:-1] @ f[:-1]))
+            if ev.decrease < SOLVE_SETTLED:
+                raise _Settled(ev.theta)
+        return J
 
     def _compressed(self, theta):
         ev = self.evaluate(theta, jacobian=True)
@@ -715,7 +741,7 @@ class OutputErrorModel:
         """``[R_B; 0]`` (:meth:`profile_residuals`). The solver asks for it at each accepted
         iterate, which becomes the secant update's reference; raises ``_Settled`` there when
         the Gauss-Newton model's predicted decrease (``_profile_model``) is below
-        :data:`PROFILE_SETTLED`."""
+        :data:`SOLVE_SETTLED`."""
         ev = self.evaluate(theta, jacobian=True)
         if ev.compressed is None:
             ev.compressed = self._profile_model(ev)
@@ -723,7 +749,7 @@ class OutputErrorModel:
         if np.all(np.isfinite(q)):
             self.secant = (ev.theta, ev.gradient, ev.secant if ev.secant is not None
                            else np.zeros_like(RJ))
-        if ev.decrease < PROFILE_SETTLED:
+        if ev.decrease < SOLVE_SETTLED:
             raise _Settled(ev.theta)
         return np.vstack([RJ, np.zeros((1, RJ.shape[1]))])
 
@@ -773,14 +799,9 @@ class OutputErrorModel:
 
         gauss_newton = factor(H) if down is not None else None
         gauss_newton = gauss_newton or (q, RJ)
-        ev.decrease = 0.5 * float(gauss_newton[0] @ gauss_newton[0])
-        lo, hi = self.structure.bounds
-        near = 1e-3 * np.where(np.isfinite(hi - lo), hi - lo, 1.0)
-        g = ev.gradient
-        free = ~(((ev.theta - lo < near) & (g > 0)) | ((hi - ev.theta < near) & (g < 0)))
-        if not free.all():  # parameters held at a bound by their gradient do not count
-            M = (gauss_newton[1].T @ gauss_newton[1])[np.ix_(free, free)]
-            ev.decrease = 0.5 * float(g[free] @ np.linalg.solve(M, g[free])) if free.any() else 0.0
+        ev.decrease = _predicted_decrease(
+            self.structure, ev.theta, ev.gradient, gauss_newton[1].T @ gauss_newton[1],
+            0.5 * float(gauss_newton[0] @ gauss_newton[0]))
         secant = factor(H + ev.secant) if ev.secant is not None else None
         return secant or gauss_newton
 
@@ -851,7 +872,22 @@ class _Reanchor(_Stop):
 
 
 class _Settled(_Stop):
-    """The profile solve has converged at ``theta`` (an accepted iterate)."""
+    """A solve has converged at ``theta`` (an accepted iterate)."""
+
+
+def _predicted_decrease(structure: LinearStructure, theta: np.ndarray, g: np.ndarray,
+                        M: np.ndarray, unconstrained: float) -> float:
+    """Decrease ``1/2 g^T M^-1 g`` of a Gauss-Newton model (gradient ``g``, matrix ``M``)
+    over the parameters not held at a bound (within 1e-3 of its range, the gradient pushing
+    outward); ``unconstrained`` where none is held."""
+    lo, hi = structure.bounds
+    near = 1e-3 * np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+    free = ~(((theta - lo < near) & (g > 0)) | ((hi - theta < near) & (g < 0)))
+    if free.all():
+        return unconstrained
+    if not free.any():
+        return 0.0
+    return 0.5 * float(g[free] @ np.linalg.solve(M[np.ix_(free, free)], g[free]))
 
 
 def _group_of(groups: list[_Group], row: int, column: int) -> int:
@@ -1012,8 +1048,15 @@ def _converge(structure: LinearStructure, records: list[TimeRecord], outputs, th
             limit = max_nfev
             if early and outer < max_outer:
                 limit = EARLY_NFEV if max_nfev is None else min(max_nfev, EARLY_NFEV)
-            res = _solve(model, theta, tol=tol, max_nfev=limit, deadline=deadline)
-            theta, nfev = res.x, nfev + res.nfev
+            before = model.n_cost
+            model.settle = RELAXATION_SETTLES
+            try:
+                theta = _solve(model, theta, tol=tol, max_nfev=limit, deadline=deadline).x
+            except _Settled as settled:
+                theta = settled.theta
+            finally:
+                model.settle = False
+            nfev += model.n_cost - before
         ev = model.evaluate(theta)
         R_new = _noise_variance(ev.errors, floor)
         change = float(np.max(np.abs(R_new / R - 1.0)))
@@ -1060,7 +1103,7 @@ def _converge_profile(model: OutputErrorModel, theta: np.ndarray, *, R0: np.ndar
     R and the nuisance parameters consistent at every evaluation, model matrix Gauss-Newton
     plus structured secant (``OutputErrorModel._profile_model``), so one solve reaches the
     maximum-likelihood point the relaxation approaches linearly. It stops where the
-    Gauss-Newton model predicts less than :data:`PROFILE_SETTLED` of further decrease; where
+    Gauss-Newton model predicts less than :data:`SOLVE_SETTLED` of further decrease; where
     ``trf``'s own tolerances ``tol`` or ``max_nfev`` end it before that, it starts again
     there (secant reset). The solver's cost is ``L_p - anchor``, the anchor ``N p / 2`` (the
     whitened cost at a fixed R's optimum: the relaxation's scale for ``tol``) below the
@@ -1084,9 +1127,9 @@ def _converge_profile(model: OutputErrorModel, theta: np.ndarray, *, R0: np.ndar
         ev = model.evaluate(theta, jacobian=True)
         if ev.compressed is None:
             ev.compressed = model._profile_model(ev)
-        stalled = bool(history) and history[-1][0] - ev.cost < PROFILE_SETTLED
+        stalled = bool(history) and history[-1][0] - ev.cost < SOLVE_SETTLED
         history.append((ev.cost, 0.0))
-        if ev.decrease < PROFILE_SETTLED or not np.isfinite(ev.decrease) or stalled:
+        if ev.decrease < SOLVE_SETTLED or not np.isfinite(ev.decrease) or stalled:
             break
         model.secant = None  # trf stopped on its own tolerances short of settling: again
     ev = model.evaluate(theta, jacobian=True)
@@ -1353,8 +1396,12 @@ def identify_time_domain(records, structure: LinearStructure, *,
             # one solve's Gauss-Newton model (a later R update can lower it further)
             prev: _Converged = previous.payload
             st = structure.fix(removed, 0.0)
-            vals = dict(zip(prev.structure.free_names, prev.theta))
-            c = converge(st, np.array([vals[n] for n in st.free_names]), prev.R)
+            if CONDITIONAL_START:
+                th0 = conditional_start(prev.statistics, removed[-1], st.free_names)
+            else:
+                vals = dict(zip(prev.structure.free_names, prev.theta))
+                th0 = np.array([vals[n] for n in st.free_names])
+            c = converge(st, th0, prev.R)
             return FitOutcome(c.cost, c.statistics, c)
 
         with progress.stage("model reduction"):
