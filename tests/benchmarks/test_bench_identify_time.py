@@ -139,16 +139,26 @@ def _profile_timings(records, st, start) -> dict:
     return out
 
 
-def _accelerations(on: bool, *, profile: bool | None = None) -> None:
-    """Switch the time-domain fit's accelerations (compressed solver problem, Aitken step of
-    the relaxation, plain-recursion sensitivities, the profile-likelihood solve) on, or off
-    for the baseline: the solver on the full (samples x outputs) problem as before, no Aitken
-    step, every propagation blocked, the relaxation to the end. ``profile`` sets the last
-    alone (False: the relaxation with the other accelerations, the estimator before the
-    profile solve)."""
-    time_domain.COMPRESSED = time_domain.AITKEN = on
-    time_domain.PROFILE = (True if on else False) if profile is None else profile
-    sim._MANY_RHS = 16 if on else 10**9
+#: The estimator's switches and their defaults (restored after every run below).
+SWITCHES = ("COMPRESSED", "AITKEN", "PROFILE", "RELAXATION_SETTLES", "CONDITIONAL_START")
+DEFAULTS = {name: getattr(time_domain, name) for name in SWITCHES}
+#: The ways the hover benchmark fits: no acceleration at all (the solver on the full
+#: problem, no Aitken step, every propagation blocked, solves to the solver's tolerances,
+#: plain refit starts); the default before 2026-11-26 (solves to the solver's tolerances,
+#: plain refit starts); the default; the profile-likelihood option.
+WAYS = {"baseline": dict(COMPRESSED=False, AITKEN=False, PROFILE=False,
+                         RELAXATION_SETTLES=False, CONDITIONAL_START=False, blocked=True),
+        "previous": dict(DEFAULTS, RELAXATION_SETTLES=False, CONDITIONAL_START=False),
+        "default": dict(DEFAULTS),
+        "profile": dict(DEFAULTS, PROFILE=True)}
+
+
+def _switch(way: dict | None) -> None:
+    """Set the estimator's switches to ``way`` (None: the defaults)."""
+    way = dict(DEFAULTS) if way is None else way
+    for name in SWITCHES:
+        setattr(time_domain, name, way[name])
+    sim._MANY_RHS = 10**9 if way.get("blocked") else 16
 
 
 def test_compressed_problem_has_the_full_problem_s_geometry():
@@ -172,50 +182,45 @@ def test_compressed_problem_has_the_full_problem_s_geometry():
 @pytest.mark.fmu
 def test_bench_identify_time_domain_hover(benchmark, request):
     """Goal: the hover study's time-domain fit with reduction <= 5 s. The fit of the
-    session's hover study (default campaign, seed 20261121) in one run three ways: without
-    any acceleration (baseline), by the relaxation to the end with the other accelerations
-    (the estimator before the profile solve) and by the default (relaxation, then the
-    profile likelihood): CPU and wall seconds, their ratios, the evaluations per stage
-    (full fit, accepted and undone reduction refits), and the agreement (same removed
-    parameters, estimates within 0.1 Cramer-Rao bounds, bounds within 1 %). 0.1 bounds: a
-    likelihood settled to COST_SETTLED (0.01) allows sqrt(2 * 0.01) = 0.14; measured 0.047
-    (relaxation) and 0.068 (baseline) bounds, the relaxation itself 0.030 from the tightly
-    converged optimum (docs/notes/2026-11-26-profile-likelihood.md)."""
+    session's hover study (default campaign, seed 20261121) in one run the four ways of
+    :data:`WAYS`: CPU and wall seconds, their ratios to the default, the evaluations per
+    stage (full fit, accepted and undone reduction refits), and the agreement with the
+    default (same removed parameters, estimates within 0.1 Cramer-Rao bounds, bounds within
+    1 %). 0.1 bounds: a likelihood settled to COST_SETTLED (0.01) allows sqrt(2 * 0.01) =
+    0.14 (docs/notes/2026-11-26-profile-likelihood.md,
+    docs/notes/2026-11-26-settled-solves-conditional-starts.md)."""
     data = hover_study_data(benchmark, request, 30)
     out, info = {}, benchmark.extra_info
 
-    def fit():
+    def fit(label):
         with stage_counts(time_domain) as stages:
             c0, t0 = time.process_time(), time.perf_counter()
             result = fit_time_domain(data, maneuvers="3211_*", structure="hover_6dof",
                                      start="linearization")
             wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-        info.update({f"{label[0]}_{k}": v for k, v in reduction_counts(result, stages).items()})
+        info.update({f"{label}_{k}": v for k, v in reduction_counts(result, stages).items()})
         return result, wall, cpu
 
-    label = ["baseline"]
     try:
-        _accelerations(False)
-        out["baseline"] = fit()
-        label[0] = "relaxation"
-        _accelerations(True, profile=False)
-        out["relaxation"] = fit()
-        label[0] = "profile"
-        _accelerations(True, profile=True)
-        out["profile"] = benchmark.pedantic(fit, rounds=1, iterations=1)
+        for label, way in WAYS.items():
+            _switch(way)
+            if label == "default":
+                out[label] = benchmark.pedantic(fit, args=(label,), rounds=1, iterations=1)
+            else:
+                out[label] = fit(label)
     finally:
-        _accelerations(True, profile=DEFAULT_PROFILE)
+        _switch(None)
     for label, (result, wall, cpu) in out.items():
         info[f"{label}_wall_s"], info[f"{label}_cpu_s"] = round(wall, 2), round(cpu, 2)
         info[f"{label}_cost_evaluations"] = result.n_cost_evaluations
         info[f"{label}_jacobian_evaluations"] = result.n_jacobian_evaluations
         info[f"{label}_outer_iterations"] = result.n_outer_iterations
-    for label in ("baseline", "relaxation"):
-        info[f"speedup_cpu_vs_{label}"] = round(out[label][2] / out["profile"][2], 2)
-        info[f"speedup_wall_vs_{label}"] = round(out[label][1] / out["profile"][1], 2)
+        if label != "default":
+            info[f"speedup_cpu_vs_{label}"] = round(cpu / out["default"][2], 2)
+            info[f"speedup_wall_vs_{label}"] = round(wall / out["default"][1], 2)
     print(f"\n{info}")
-    fast = out["profile"][0]
-    for label in ("baseline", "relaxation"):
+    fast = out["default"][0]
+    for label in ("baseline", "previous", "profile"):
         base = out[label][0]
         assert base.reduction.removed == fast.reduction.removed
         assert base.structure.free_names == fast.structure.free_names
