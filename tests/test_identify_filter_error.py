@@ -196,6 +196,55 @@ def test_gain_and_noise_against_the_truth_and_innovations_white():
     assert oe.model.attrs["residual_decay_lag_s"] > 10 * DT
 
 
+def test_analytic_sensitivities_match_central_differences():
+    """The innovation sensitivities of the solver and the bounds (predictor sensitivity
+    equations, Riccati derivative from a Lyapunov equation) against central differences of
+    the whitened innovations, off the optimum, on the heave/pitch system with a free delay
+    (at 1.65 samples: the interpolation is smooth there), an output equation
+    (``az = w_dot``, so C and D depend on the derivatives) with a D parameter, full process
+    noise, a negative ``r``, biases and initial states, and a non-diagonal whitener.
+    Measured: largest column error 2e-9 relative. The compressed problem handed to the
+    solver has the full problem's cost, gradient and Gauss-Newton matrix."""
+    from sysid.identify import filter_error as fe
+    from sysid.identify.time_domain import fit_inputs
+    where = {"Z_w": ("A", "w", "w"), "Z_q": ("A", "w", "q"), "M_w": ("A", "q", "w"),
+             "M_q": ("A", "q", "q"), "Z_lon": ("B", "w", "lon"), "M_lon": ("B", "q", "lon")}
+    params = [Parameter(k, *where[k], v) for k, v in TRUTH.items()]
+    params += [Parameter("tau_q", "delay", "q", "lon", 0.03, True, 0.0, 0.2),
+               Parameter("D_az", "D", "az", "lon", 0.1)]
+    st = LinearStructure(states=("w", "q"), inputs=("lon",), outputs=("w", "q", "az"),
+                         output_equation=[[0, 0], [0, 0], [1, 0]], name="heave_pitch_az",
+                         parameters=params)
+    recs = records(1, gust=3.0, rate_gain=RATE_GAIN, duration=5.0)
+    rng = np.random.default_rng(7)
+    for r in recs:
+        az = np.gradient(r["w"].values, DT) + 0.1 * rng.standard_normal(r.sizes["time"])
+        r["az"] = ("time", az)
+        r.attrs["trim_az"] = 0.0
+    _, outs, prep = fit_inputs(recs, st, None, what="test")
+    pred = fe._Predictor(st, prep, outs, fe._noise_mask("full", 2), True, True)
+    pred.r0 = 0.3
+    pred.whitener = np.array([[1.0, 0.0, 0.0], [0.3, 2.0, 0.0], [-0.2, 0.1, 0.5]])
+    theta = st.theta0 * (1.0 + 0.2 * rng.standard_normal(st.theta0.size))
+    theta[list(st.free_names).index("tau_q")] = 0.033
+    beta = np.concatenate([theta, [1.5, 0.4, 0.7], [-0.6, 0.8],
+                           0.3 * rng.standard_normal(len(prep) * pred.n_rec)])
+    lo, hi = st.bounds
+    lower = np.concatenate([lo, np.full(pred.n_beta - len(lo), -np.inf)])
+    upper = np.concatenate([hi, np.full(pred.n_beta - len(hi), np.inf)])
+    Ja = pred.jacobian(beta)
+    Jc = fe._central_jacobian(pred.residuals, beta, lower, upper)
+    err = np.linalg.norm(Ja - Jc, axis=0) / np.linalg.norm(Jc, axis=0)
+    assert np.all(np.linalg.norm(Jc, axis=0) > 0)
+    assert np.max(err) < 1e-5, dict(zip(pred.names(outs), err))
+    r = pred.residuals(beta)
+    f, Jf = fe._compress(r, Ja)
+    np.testing.assert_allclose(f @ f, r @ r, rtol=1e-12)
+    np.testing.assert_allclose(Jf.T @ f, Ja.T @ r, rtol=1e-8, atol=1e-8 * np.abs(Ja.T @ r).max())
+    np.testing.assert_allclose(Jf.T @ Jf, Ja.T @ Ja, rtol=1e-8,
+                               atol=1e-10 * np.abs(Ja.T @ Ja).max())
+
+
 def test_errors_name_what_is_wrong():
     st = structure()
     recs = records(0, gust=0.0)

@@ -32,13 +32,25 @@ every trial, and ``F = 0`` is output error. (A free gain matrix is not kept stab
 process noise its estimate piles up on the stability boundary, the zeros of the noise model
 ``I + C (qI - Phi + K C)^-1 K`` meeting the unit circle.) Minimised by relaxation: a
 Levenberg-Marquardt solve on the whitened innovations ``Sigma^-1/2 e`` with ``Sigma`` fixed
-(:func:`scipy.optimize.least_squares`; sensitivities by forward differences), then
-``Sigma = 1/N sum e e^T`` (its maximum-likelihood estimate), until ``L`` changes by less
-than ``cost_tol``.
+(:func:`scipy.optimize.least_squares`), then ``Sigma = 1/N sum e e^T`` (its
+maximum-likelihood estimate), until ``L`` changes by less than ``cost_tol``.
+
+Sensitivities (Jategaonkar 2015 ch. 5): with ``K`` held, ``dx^`` follows the predictor's
+own recursion,
+
+    dx^[k+1] = (Phi - K C) dx^[k] + dPhi x^ + dGamma v + Gamma dv + dK e
+               - K (dC x^ + dD u + db) ,                  dx^[0] = dx0
+    de[k]    = -(C dx^[k] + dC x^[k] + dD u[k] + db)
+
+(``dPhi, dGamma`` Frechet derivatives of the zero-order hold, ``dv`` of a free delay); ``dK``
+from the derivative of the Riccati solution, a discrete Lyapunov equation
+``dP - Acl dP Acl^T = T + T^T + dQ + K dR K^T``, ``T = (dPhi - K dC) P Acl^T``. The solver
+gets the problem compressed to ``n_beta + 1`` rows (same steps, no factorisation of the tall
+Jacobian); :data:`FINITE_DIFFERENCES` restores the first version's differences.
 
 Accuracy: Cramer-Rao bounds from the innovations' information matrix
-``M = sum_k S[k]^T Sigma^-1 S[k]`` (``S = de/d(theta, F, r, b, x0)``, central differences at
-the optimum); the bounds of the structure parameters have ``F``, the biases and initial
+``M = sum_k S[k]^T Sigma^-1 S[k]`` (``S = de/d(theta, F, r, b, x0)``, the analytic
+sensitivities at the optimum); the bounds of the structure parameters have ``F``, the biases and initial
 states marginalised (Schur complement). They are honest when the innovations are white,
 which the result reports as the normalised autocorrelation of each whitened innovation at
 lags 1-10 (band ``2/sqrt(N)``).
@@ -76,6 +88,9 @@ __all__ = ["FilterErrorResult", "identify_filter_error", "WHITENESS_LAGS"]
 
 #: Lags (samples) at which the whiteness of the innovations is reported.
 WHITENESS_LAGS = 10
+#: Innovation sensitivities by finite differences (forward in the solver, central for the
+#: bounds) instead of the analytic ones: the first implementation, kept for A/B comparison.
+FINITE_DIFFERENCES = False
 #: Whitened residual returned for every sample of a trial model whose Riccati equation has
 #: no stabilising solution (the solver then rejects the step).
 _FAILED_RESIDUAL = 1e6
@@ -151,7 +166,8 @@ class FilterErrorResult(FitResultParameters):
 
 class _Predictor:
     """Innovations of every record for a full parameter vector
-    ``beta = [theta, F entries, per record (biases, initial state)]`` at fixed ``R``."""
+    ``beta = [theta, F entries, r_1..r_(p-1), per record (biases, initial state)]`` and
+    their analytic sensitivities ``de/dbeta`` (:meth:`jacobian`)."""
 
     def __init__(self, structure, records, outputs, noise_mask, biases, initial_state):
         self.structure = structure
@@ -170,7 +186,11 @@ class _Predictor:
         self.whitener = np.eye(self.p)
         self.r0 = 1.0  #: the measurement-noise std of the first output, held (scale of Q, R)
         self.n_eval = 0
+        self.n_jac = 0
         self._disc = (None, None)  #: (theta, discrete model) of the last evaluation
+        self._state = (None, None)  #: (beta, predictor states) of the last evaluation
+        self._comp = (None, None)  #: (beta, compressed problem) of the last evaluation
+        self._dmat = self._matrix_derivatives()
 
     def names(self, outputs) -> list[str]:
         st = self.structure
@@ -195,6 +215,26 @@ class _Predictor:
         b = rest[:, :nb] if self.biases else np.zeros((len(self.records), self.p))
         x0 = rest[:, nb:] if self.initial_state else np.zeros((len(self.records), self.n))
         return theta, F, R, b, x0
+
+    def _matrix_derivatives(self):
+        """``(dA, dB, dC, dD)`` of the fitted model per free structure parameter (``None``
+        for a delay): constant, the matrices being affine in the other parameters
+        (``C + M (A - K)``, ``D + M B`` with output equations)."""
+        st = self.structure
+        n, m, q = len(st.states), len(st.inputs), len(st.outputs)
+        out = []
+        for k in st.free_index:
+            par = st.parameters[int(k)]
+            if par.matrix == "delay":
+                out.append(None)
+                continue
+            d = {"A": np.zeros((n, n)), "B": np.zeros((n, m)), "C": np.zeros((q, n)),
+                 "D": np.zeros((q, m))}
+            for i, c, scale in st.entries_of(int(k)):
+                d[par.matrix][i, c] += scale
+            dC, dD = d["C"] + st.M @ d["A"], d["D"] + st.M @ d["B"]
+            out.append((d["A"], d["B"], dC[self.out_idx], dD[self.out_idx]))
+        return out
 
     def discrete(self, theta):
         """``(groups, C, D, {dt: (Phi, Gamma)})`` at ``theta`` (the last one cached: the
@@ -223,24 +263,38 @@ class _Predictor:
             raise np.linalg.LinAlgError("unstable predictor")
         return K, P
 
-    def innovations(self, beta) -> list[np.ndarray]:
-        """``e = z - y^`` per record (N, p); raises ``LinAlgError``/``ValueError`` when the
-        Riccati equation fails."""
+    def _run(self, beta) -> dict:
+        """The predictor at ``beta``: per record inputs ``V``, their delay derivatives
+        ``dV`` (N, G), states ``X`` (N, n) and innovations ``E`` (N, p); ``(K, P)`` per dt.
+        Raises ``LinAlgError``/``ValueError`` when the Riccati equation fails. The last
+        one is cached (the solver asks for the Jacobian where it evaluated the residuals)."""
+        beta = np.asarray(beta, float)
+        if self._state[0] is not None and np.array_equal(self._state[0], beta):
+            return self._state[1]
         self.n_eval += 1
-        theta, F, R, b, x0 = self.split(np.asarray(beta, float))
+        theta, F, R, b, x0 = self.split(beta)
         groups, C, D, disc = self.discrete(theta)
-        gains = {dt: self.kalman(Phi, C, F, R)[0] for dt, (Phi, _) in disc.items()}
-        out = []
+        gains = {dt: self.kalman(Phi, C, F, R) for dt, (Phi, _) in disc.items()}
+        run = {"gains": gains, "V": [], "dV": [], "X": [], "E": []}
         for r, rec in enumerate(self.records):
             Phi, Gam = disc[rec.dt]
-            K = gains[rec.dt]
-            V = np.stack([_delayed(rec.U[:, g.column], g.delay / rec.dt)[0] for g in groups],
-                         axis=1)
+            K = gains[rec.dt][0]
+            VV = [_delayed(rec.U[:, g.column], g.delay / rec.dt) for g in groups]
+            V = np.stack([v for v, _ in VV], axis=1)
             # x^[k+1] = (Phi - K C) x^[k] + Gamma v[k] + K (z[k] - D u[k] - b)
             W = V @ Gam.T + (rec.Z - rec.U @ D.T - b[r]) @ K.T
             X = propagate(Phi - K @ C, W, x0[r])
-            out.append(rec.Z - (X @ C.T + rec.U @ D.T + b[r]))
-        return out
+            run["V"].append(V)
+            run["dV"].append(np.stack([d for _, d in VV], axis=1))
+            run["X"].append(X)
+            run["E"].append(rec.Z - (X @ C.T + rec.U @ D.T + b[r]))
+        self._state = (beta.copy(), run)
+        return run
+
+    def innovations(self, beta) -> list[np.ndarray]:
+        """``e = z - y^`` per record (N, p); raises ``LinAlgError``/``ValueError`` when the
+        Riccati equation fails."""
+        return self._run(beta)["E"]
 
     def residuals(self, beta) -> np.ndarray:
         try:
@@ -249,6 +303,176 @@ class _Predictor:
             size = sum(len(rec.time) for rec in self.records) * self.p
             return np.full(size, _FAILED_RESIDUAL)
         return np.concatenate([e @ self.whitener.T for e in E]).ravel()
+
+    def compressed_residuals(self, beta) -> np.ndarray:
+        """``f`` (n_beta + 1) of the problem compressed by the thin factorisation of the
+        Jacobian (:func:`_compress`): ``|f| = |Sigma^-1/2 e|``,
+        same gradient and Gauss-Newton models, so the solver's steps are the full problem's
+        without factorising the (N p x n_beta) Jacobian at every iteration."""
+        return self._compressed(beta)[0]
+
+    def compressed_jacobian(self, beta, *_) -> np.ndarray:
+        """``[R_J; 0]`` (n_beta + 1, n_beta) of :meth:`compressed_residuals`."""
+        return self._compressed(beta)[1]
+
+    def _compressed(self, beta):
+        beta = np.asarray(beta, float)
+        if self._comp[0] is not None and np.array_equal(self._comp[0], beta):
+            return self._comp[1]
+        try:
+            self._run(beta)
+        except (np.linalg.LinAlgError, ValueError):
+            size = sum(len(rec.time) for rec in self.records) * self.p
+            f = np.zeros(self.n_beta + 1)
+            f[-1] = _FAILED_RESIDUAL * math.sqrt(size)  # the cost of the failed residuals
+            out = (f, np.zeros((self.n_beta + 1, self.n_beta)))
+        else:
+            out = _compress(self.residuals(beta), self.jacobian(beta))
+        self._comp = (beta.copy(), out)
+        return out
+
+    # -- analytic sensitivities ----------------------------------------------------------------
+
+    def _discrete_derivatives(self, theta, dt, groups):
+        """``dPhi`` (P, n, n) and ``dGamma`` (P, n, G) per non-delay free structure parameter
+        (zeros for a delay) at sample interval ``dt``: Frechet derivative of the exponential
+        of ``[[A, Bg], [0, 0]] dt`` for the A parameters, ``Psi dBg`` (``Psi = int_0^dt e^As
+        ds``) for the others."""
+        A, B, _, _, _ = self.structure.matrices(theta)
+        Bg = np.stack([B[:, g.column] * g.rows for g in groups], axis=1)
+        n, G = Bg.shape
+        Mx = np.zeros((n + G, n + G))
+        Mx[:n, :n], Mx[:n, n:] = A * dt, Bg * dt
+        MI = np.zeros((2 * n, 2 * n))
+        MI[:n, :n], MI[:n, n:] = A * dt, np.eye(n) * dt
+        Psi = scipy.linalg.expm(MI)[:n, n:]
+        dPhi = np.zeros((self.n_theta, n, n))
+        dGam = np.zeros((self.n_theta, n, G))
+        for j, dm in enumerate(self._dmat):
+            if dm is None:
+                continue
+            dA, dB = dm[0], dm[1]
+            dBg = np.stack([dB[:, g.column] * g.rows for g in groups], axis=1)
+            if np.any(dA):
+                dM = np.zeros_like(Mx)
+                dM[:n, :n], dM[:n, n:] = dA * dt, dBg * dt
+                dE = scipy.linalg.expm_frechet(Mx, dM, compute_expm=False)
+                dPhi[j], dGam[j] = dE[:n, :n], dE[:n, n:]
+            else:
+                dGam[j] = Psi @ dBg
+        return dPhi, dGam
+
+    def _gain_derivatives(self, Phi, C, K, P, F, R, r, dPhi, dC):
+        """``dK`` (n_theta + n_g, n, p) for the structure parameters, the F entries and
+        ``r = r_1..r_(p-1)``: the Riccati solution's derivative from the discrete Lyapunov equation
+        ``dP - Acl dP Acl^T = T + T^T + dQ + K dR K^T``, ``T = (dPhi - K dC) P Acl^T``,
+        ``Acl = Phi - K C`` (the gain's own variation drops out: K is optimal), then
+        ``dK = (dPhi P C^T + Phi dP C^T + Phi P dC^T - K dS) S^-1``,
+        ``S = C P C^T + R``, ``dS = dC P C^T + C dP C^T + C P dC^T + dR``."""
+        n, p, nt = self.n, self.p, self.n_theta
+        Acl = Phi - K @ C
+        S = C @ P @ C.T + np.diag(R)
+        m = nt + self.n_g
+        dPhi_all = np.zeros((m, n, n))
+        dC_all = np.zeros((m, p, n))
+        dQ = np.zeros((m, n, n))
+        dR = np.zeros((m, p, p))
+        dPhi_all[:nt], dC_all[:nt] = dPhi, dC
+        for a, (i, j) in enumerate(zip(self.f_rows, self.f_cols)):
+            dF = np.zeros((n, n))
+            dF[i, j] = 1.0
+            dQ[nt + a] = dF @ F.T + F @ dF.T
+        for a in range(1, p):  # R_aa = r_a^2, r_a of either sign
+            dR[nt + self.n_f + a - 1, a, a] = 2.0 * r[a - 1]
+        active = np.flatnonzero([np.any(a) or np.any(b) or np.any(c) or np.any(d)
+                                 for a, b, c, d in zip(dPhi_all, dC_all, dQ, dR)])
+        dK = np.zeros((m, n, p))
+        if not len(active):
+            return dK
+        T = (dPhi_all[active] - K @ dC_all[active]) @ P @ Acl.T
+        rhs = T + T.transpose(0, 2, 1) + dQ[active] + K @ dR[active] @ K.T
+        # (I - Acl (x) Acl) vec(dP) = vec(rhs), row-major vec: one LU for every right side
+        lyap = np.eye(n * n) - np.kron(Acl, Acl)
+        dP = np.linalg.solve(lyap, rhs.reshape(len(active), n * n).T).T.reshape(-1, n, n)
+        dP = 0.5 * (dP + dP.transpose(0, 2, 1))
+        dCa = dC_all[active]
+        dS = dCa @ P @ C.T + C @ dP @ C.T + C @ P @ dCa.transpose(0, 2, 1) + dR[active]
+        num = (dPhi_all[active] @ P @ C.T + Phi @ dP @ C.T + Phi @ P @ dCa.transpose(0, 2, 1)
+               - K @ dS)
+        dK[active] = num @ np.linalg.inv(S)
+        return dK
+
+    def jacobian(self, beta) -> np.ndarray:
+        """``d(Sigma^-1/2 e)/dbeta`` (N p, n_beta), rows as :meth:`residuals`: the
+        sensitivities ``dx^`` follow the predictor's recursion with ``K`` held,
+        ``dx^[k+1] = (Phi - K C) dx^[k] + dPhi x^ + dGamma v + Gamma dv + dK e
+        - K (dC x^ + dD u + db)``, ``dx^[0] = dx0``, and ``de = -(C dx^ + dC x^ + dD u + db)``.
+        Zeros where the Riccati equation fails (the solver never asks there)."""
+        beta = np.asarray(beta, float)
+        try:
+            run = self._run(beta)
+        except (np.linalg.LinAlgError, ValueError):
+            return np.zeros((sum(len(rec.time) for rec in self.records) * self.p,
+                             self.n_beta))
+        self.n_jac += 1
+        theta, F, R, _, _ = self.split(beta)
+        groups, C, D, disc = self.discrete(theta)
+        n, p, nt, ng, nr = self.n, self.p, self.n_theta, self.n_g, self.n_rec
+        dC = np.zeros((nt, p, n))
+        dD = np.zeros((nt, p, len(self.structure.inputs)))
+        for j, d in enumerate(self._dmat):
+            if d is not None:
+                dC[j], dD[j] = d[2], d[3]
+        per_dt = {}
+        for dt, (Phi, Gam) in disc.items():
+            K, P = run["gains"][dt]
+            dPhi, dGam = self._discrete_derivatives(theta, dt, groups)
+            dK = self._gain_derivatives(Phi, C, K, P, F, R, beta[nt + self.n_f:nt + ng],
+                                        dPhi, dC)
+            per_dt[dt] = (Phi, Gam, K, dPhi, dGam, dK)
+        out_cols = np.flatnonzero(np.any(dC != 0, axis=(1, 2)) | np.any(dD != 0, axis=(1, 2)))
+        delays = [(j, next(g for g, gr in enumerate(groups) if gr.free_delay == j))
+                  for j, d in enumerate(self._dmat) if d is None]
+        nb = p if self.biases else 0
+        rows = 0
+        J = np.zeros((sum(len(rec.time) for rec in self.records) * p, self.n_beta))
+        for r, rec in enumerate(self.records):
+            Phi, Gam, K, dPhi, dGam, dK = per_dt[rec.dt]
+            X, E, V, dV = run["X"][r], run["E"][r], run["V"][r], run["dV"][r]
+            N = len(X)
+            k = nt + ng + nr
+            W = np.zeros((N, n, k))
+            Out = np.zeros((N, p, k))  # direct terms of de (besides -C dx^), sign flipped
+            # dPhi x^ + dGamma v for every structure parameter: one product
+            if nt:
+                dPG = np.concatenate([dPhi, dGam], axis=2)  # (nt, n, n + G)
+                W[:, :, :nt] = (np.hstack([X, V]) @ dPG.reshape(nt * n, -1).T).reshape(
+                    N, nt, n).transpose(0, 2, 1)
+            # dK e (structure parameters through Phi and C, F entries, r)
+            W[:, :, :nt + ng] += (E @ dK.reshape((nt + ng) * n, p).T).reshape(
+                N, nt + ng, n).transpose(0, 2, 1)
+            if len(out_cols):  # dC x^ + dD u, fed back through K
+                dCD = np.concatenate([dC[out_cols], dD[out_cols]], axis=2)
+                O = (np.hstack([X, rec.U]) @ dCD.reshape(len(out_cols) * p, -1).T).reshape(
+                    N, len(out_cols), p).transpose(0, 2, 1)
+                Out[:, :, out_cols] = O
+                W[:, :, out_cols] -= np.matmul(K, O)
+            for j, g in delays:
+                W[:, :, j] = np.outer(dV[:, g] / rec.dt, Gam[:, g])
+            X0 = np.zeros((n, k))
+            if self.biases:
+                W[:, :, nt + ng:nt + ng + p] = -K[None]
+                Out[:, np.arange(p), nt + ng + np.arange(p)] = 1.0
+            if self.initial_state:
+                X0[np.arange(n), nt + ng + nb + np.arange(n)] = 1.0
+            Sx = propagate(Phi - K @ C, W, X0)
+            dE = -(np.matmul(C, Sx) + Out)
+            block = np.matmul(self.whitener, dE).reshape(N * p, k)
+            J[rows:rows + N * p, :nt + ng] = block[:, :nt + ng]
+            c0 = nt + ng + r * nr
+            J[rows:rows + N * p, c0:c0 + nr] = block[:, nt + ng:]
+            rows += N * p
+        return J
 
 
 def _noise_mask(process_noise, n: int) -> np.ndarray:
@@ -416,9 +640,12 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
     method, bounds = ("trf", (lower, upper)) if bounded else ("lm", (-np.inf, np.inf))
     E, Sigma, cost = innovations(beta, "at the start")
     cost_prev, passes = math.inf, 0
+    fun, jac = ((pred.residuals, "2-point") if FINITE_DIFFERENCES else
+                (pred.compressed_residuals, pred.compressed_jacobian))
     for passes in range(1, max_passes + 1):
         pred.whitener = np.linalg.inv(np.linalg.cholesky(Sigma))
-        sol = scipy.optimize.least_squares(pred.residuals, beta, method=method,
+        pred._comp = (None, None)  # whitened by the previous Sigma
+        sol = scipy.optimize.least_squares(fun, beta, method=method, jac=jac,
                                            bounds=bounds, x_scale="jac", ftol=tol,
                                            xtol=tol, gtol=tol, max_nfev=max_nfev)
         beta = sol.x
@@ -428,7 +655,8 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
         cost_prev = cost
     pred.whitener = np.linalg.inv(np.linalg.cholesky(Sigma))
     names = pred.names(outs)
-    J = _central_jacobian(pred.residuals, beta, lower, upper)
+    J = (_central_jacobian(pred.residuals, beta, lower, upper) if FINITE_DIFFERENCES
+         else pred.jacobian(beta))
     joint = parameter_statistics(J, beta, names)
     nt = pred.n_theta
     Gt, Gn = J[:, :nt], J[:, nt:]
@@ -479,9 +707,12 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
                                              zip(pred.f_rows, pred.f_cols)]),
         "cramer_rao_convention": "M = sum S^T Sigma^-1 S of the innovations (process noise "
                                  "and nuisance marginalised), CR = sqrt(diag M^-1)",
-        "sensitivities": "forward differences (solver), central differences (bounds)",
+        "sensitivities": ("forward differences (solver), central differences (bounds)"
+                          if FINITE_DIFFERENCES else "analytic (predictor sensitivity "
+                          "equations, Riccati derivative from a Lyapunov equation)"),
         "passes": int(passes),
         "n_cost_evaluations": int(pred.n_eval),
+        "n_jacobian_evaluations": int(pred.n_jac),
         "cpu_time_s": float(cpu),
         "whiteness_band": band,
         "max_abs_autocorrelation": float(np.max(np.abs(white))),
@@ -492,6 +723,32 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
     return FilterErrorResult(model, structure, theta, stats, joint, gain_da, q_da, f_da, r_da,
                              sig_da, white_da, float(cost), tuple(r.name for r in recs), outs,
                              int(passes), int(pred.n_eval), float(cpu), full_statistics=stats)
+
+
+def _compress(r: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(f, J_f)``, ``n + 1`` residuals and their ``(n + 1) x n`` Jacobian with
+    ``|f| = |r|``, ``J_f^T f = J^T r`` and ``J_f^T J_f = J^T J`` (so every Gauss-Newton model
+    and column norm is the full problem's; as :func:`sysid.identify.least_squares.compress`),
+    from the eigen-decomposition ``V diag(lam) V^T`` of the column-scaled Gram matrix:
+    ``J_f = diag(sqrt(lam)) V^T D``, ``f = diag(lam)^-1/2 V^T D^-1 J^T r``. Unlike a Cholesky
+    factor it allows a rank-deficient ``J``: the bias and the initial state of a state that
+    no other state reads (the heading) are exactly collinear. Directions with
+    ``lam < 1e-12 max(lam)`` are dropped (no curvature and, to rounding, no gradient)."""
+    n = J.shape[1]
+    G = J.T @ J  # scaled after the product: no copy of the tall J
+    d = np.sqrt(np.diag(G))
+    d = np.where(d > 0, d, 1.0)
+    lam, V = np.linalg.eigh(G / np.outer(d, d))
+    keep = lam > 1e-12 * lam[-1]
+    s = np.sqrt(lam[keep])
+    Vk = V[:, keep]
+    q = (Vk.T @ ((J.T @ r) / d)) / s
+    f = np.zeros(n + 1)
+    f[:len(q)] = q
+    f[-1] = math.sqrt(max(float(r @ r) - float(q @ q), 0.0))
+    Jf = np.zeros((n + 1, n))
+    Jf[:len(q)] = (Vk * s).T * d
+    return f, Jf
 
 
 def _central_jacobian(fun, x, lower, upper) -> np.ndarray:
