@@ -80,7 +80,9 @@ import xarray as xr
 
 from sysid.core.errors import IdentificationError, InputDataError
 from sysid.core.util import blas_threads
-from sysid.identify.statistics import FitResultParameters, ParameterStatistics, parameter_statistics
+from sysid.identify.statistics import (ColouredBounds, FitResultParameters, ParameterStatistics,
+                                      add_corrected_bounds, coloured_residual_covariance,
+                                      parameter_statistics)
 from sysid.identify.time_domain import OutputErrorModel, _delayed, fit_inputs
 from sysid.models import LinearStructure, propagate
 
@@ -126,6 +128,9 @@ class FilterErrorResult(FitResultParameters):
         ``R`` (output), diagonal: ``diag(Sigma - C P C^T)`` with the scaled process noise.
     innovation_covariance : xr.DataArray
         ``Sigma`` (output, output_).
+    coloured : ColouredBounds or None
+        Bounds of ``theta`` corrected for coloured innovations (Morelli & Klein, as for
+        output error), also in ``model`` as ``cramer_rao_corrected``.
     whiteness : xr.DataArray
         Normalised autocorrelation of the whitened innovations (output, lag), lags
         1..:data:`WHITENESS_LAGS`, pooled over records; ``attrs["band"] = 2/sqrt(N)``.
@@ -157,6 +162,7 @@ class FilterErrorResult(FitResultParameters):
     n_cost_evaluations: int
     cpu_time: float
     full_statistics: ParameterStatistics | None = None
+    coloured: ColouredBounds | None = None
 
     @property
     def J(self) -> float:
@@ -664,6 +670,12 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
         Q, _ = np.linalg.qr(Gn[:, np.linalg.norm(Gn, axis=0) > 0])
         Gt = Gt - Q @ (Q.T @ Gt)
     stats = parameter_statistics(Gt, beta[:nt], list(structure.free_names))
+    coloured = None
+    if nt:  # the innovations' colour (structure error the process noise did not absorb)
+        ends = np.cumsum([0] + [len(e) * p for e in E])
+        coloured = coloured_residual_covariance(
+            sensitivities=[Gt[a:b].reshape(-1, p, nt) for a, b in zip(ends[:-1], ends[1:])],
+            residuals=[e @ pred.whitener.T for e in E], information_inverse=stats.covariance)
     theta, F, R, _, _ = pred.split(beta)
     _, C, _, disc = pred.discrete(theta)
     K, P = pred.kalman(disc[recs[0].dt][0], C, F, R)
@@ -718,11 +730,13 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
         "max_abs_autocorrelation": float(np.max(np.abs(white))),
     }
     model = structure.to_dataset(theta, stats, attrs=attrs)
+    add_corrected_bounds(model, structure.free_names, theta, coloured, recs[0].dt)
     for da in (gain_da, q_da, r_da, sig_da, white_da):
         model[da.name] = da
     return FilterErrorResult(model, structure, theta, stats, joint, gain_da, q_da, f_da, r_da,
                              sig_da, white_da, float(cost), tuple(r.name for r in recs), outs,
-                             int(passes), int(pred.n_eval), float(cpu), full_statistics=stats)
+                             int(passes), int(pred.n_eval), float(cpu), full_statistics=stats,
+                             coloured=coloured)
 
 
 def _compress(r: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -368,8 +368,9 @@ def correlation_lag(autocorrelation: np.ndarray, n_samples: int, *,
                     band: float = WHITENESS_BAND) -> int:
     """Lag (samples) by which every output's normalised residual autocorrelation
     ``rho_a(k) = C[k, a, a] / C[0, a, a]`` has first fallen inside the whiteness band
-    ``band / sqrt(n_samples)``; the largest lag given when one never does. 0 for white
-    residuals."""
+    ``|rho_a| < band / sqrt(n_samples)``; the largest lag given when one never does. 0 for
+    white residuals. (Inside in magnitude: a Kalman filter's innovations can be negatively
+    correlated at lag 1 and positively beyond.)"""
     C = np.asarray(autocorrelation, dtype=float)
     var = np.einsum("kaa->ka", C)
     lag = 0
@@ -377,7 +378,7 @@ def correlation_lag(autocorrelation: np.ndarray, n_samples: int, *,
     for a in range(C.shape[1]):
         if not var[0, a] > 0:
             continue
-        inside = np.flatnonzero(var[1:, a] / var[0, a] < limit)
+        inside = np.flatnonzero(np.abs(var[1:, a] / var[0, a]) < limit)
         lag = max(lag, int(inside[0]) if len(inside) else len(C) - 1)
     return lag
 
@@ -418,6 +419,30 @@ def on_parameters(parameters, free_names: Sequence[str], values) -> np.ndarray:
         pos = {str(p): k for k, p in enumerate(np.asarray(parameters))}
         out[[pos[name] for name in free_names]] = values
     return out
+
+
+def add_corrected_bounds(ds: xr.Dataset, free_names: Sequence[str], theta,
+                         coloured: ColouredBounds | None, dt: float) -> xr.Dataset:
+    """Put the bounds corrected for coloured residuals on a model Dataset's ``parameter``
+    axis (``cramer_rao_corrected``, ``cramer_rao_percent_corrected``; NaN where fixed or
+    without a correction) with the lags in s (``residual_decay_lag_s``,
+    ``residual_window_lag_s``) and the convention in the attributes. Returns ``ds``."""
+    cr_c = on_parameters(ds.parameter.values, free_names,
+                         None if coloured is None else coloured.cramer_rao)
+    cr_cp = on_parameters(ds.parameter.values, free_names,
+                          None if coloured is None else coloured.percent(theta))
+    if coloured is not None:
+        ds.attrs.update(residual_decay_lag_s=float(coloured.decay_lag * dt),
+                        residual_window_lag_s=float(coloured.window_lag * dt))
+    ds.attrs["cramer_rao_corrected_convention"] = (
+        "M^-1 [sum_i sum_j S(i)^T R_vv(i-j) S(j)] M^-1 (Morelli & Klein 1997), R_vv the "
+        "whitened residual autocorrelation, Bartlett lag window")
+    ds["cramer_rao_corrected"] = ("parameter", cr_c, {
+        "long_name": "Cramer-Rao bound corrected for coloured residuals (one standard "
+                     "deviation)"})
+    ds["cramer_rao_percent_corrected"] = ("parameter", cr_cp, {
+        "long_name": "corrected Cramer-Rao bound in percent of |value|", "units": "%"})
+    return ds
 
 
 def coloured_residual_covariance(*, sensitivities: Sequence[np.ndarray],

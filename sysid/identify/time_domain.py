@@ -120,8 +120,9 @@ from sysid.identify.least_squares import compress, triangle
 from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
                                      conditional_start, stepwise_reduction)
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters,
-                                      ParameterStatistics, coloured_residual_covariance,
-                                      on_parameters, parameter_rows, parameter_statistics,
+                                      ParameterStatistics, add_corrected_bounds,
+                                      coloured_residual_covariance,
+                                      parameter_rows, parameter_statistics,
                                       perturbed_start)
 from sysid.models import LinearStructure, propagate
 
@@ -1519,20 +1520,4 @@ def _model_dataset(final: _Converged, joint: ParameterStatistics, recs, outs, re
                                          "estimated"})
     ds["initial_state_cramer_rao"] = (("record", "state"), x0_cr,
                                       {"long_name": "Cramer-Rao bound of the initial state"})
-    cr_c = on_parameters(ds.parameter.values, st.free_names,
-                         None if coloured is None else coloured.cramer_rao)
-    cr_cp = on_parameters(ds.parameter.values, st.free_names,
-                          None if coloured is None else coloured.percent(final.theta))
-    if coloured is not None:
-        dt = recs[0].dt
-        ds.attrs.update(residual_decay_lag_s=float(coloured.decay_lag * dt),
-                        residual_window_lag_s=float(coloured.window_lag * dt))
-    ds.attrs["cramer_rao_corrected_convention"] = (
-        "M^-1 [sum_i sum_j S(i)^T R_vv(i-j) S(j)] M^-1 (Morelli & Klein 1997), R_vv the "
-        "whitened residual autocorrelation, Bartlett lag window")
-    ds["cramer_rao_corrected"] = ("parameter", cr_c, {
-        "long_name": "Cramer-Rao bound corrected for coloured residuals (one standard "
-                     "deviation)"})
-    ds["cramer_rao_percent_corrected"] = ("parameter", cr_cp, {
-        "long_name": "corrected Cramer-Rao bound in percent of |value|", "units": "%"})
-    return ds
+    return add_corrected_bounds(ds, st.free_names, final.theta, coloured, recs[0].dt)
