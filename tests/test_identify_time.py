@@ -562,3 +562,17 @@ def test_bad_input_is_reported_clearly(clean_records):
         identify_time_domain(clean_records, st.fix(st.free_names, None))
     with pytest.raises(InputDataError, match="start has"):
         identify_time_domain(clean_records, st, start=np.zeros(3))
+
+
+def test_decay_lag_counts_negative_correlation_as_colour():
+    """An analytic autocorrelation that is -0.3 at lag 1 and +0.2 up to lag 9 (a Kalman
+    predictor's innovations with unmodelled dynamics look like that) has not decayed at lag
+    1: |rho| stays outside the band for lags 1-9, so the decay lag is 9 (white: 0). Before,
+    the signed test counted lag 1 as inside and returned 0."""
+    from sysid.identify.statistics import correlation_lag
+
+    rho = np.r_[1.0, -0.3, np.full(8, 0.2), np.zeros(6)]
+    C = rho[:, None, None] * np.ones((1, 1, 1))
+    assert correlation_lag(C, 4000) == 9
+    white = np.r_[1.0, np.zeros(15)][:, None, None]
+    assert correlation_lag(white, 4000) == 0
