@@ -16,6 +16,17 @@ structure's values.
 
 ::
 
+    sysid identify-filter-error campaign.nc --maneuvers '3211_*' [--structure S.toml]
+                        [--start ...] [--process-noise diagonal|full|u,v,w,r]
+                        [--outputs u,v,w,...] [--quiet]
+
+fits the structure by the filter-error method (process and measurement noise; the steady
+Kalman predictor's innovations; :func:`sysid.identify.stages.fit_filter_error`, no model
+reduction), stores ``/models/filter_error`` and prints the table with the innovations'
+bounds, the bounds corrected for their colour, the noise and the innovations' whiteness.
+
+::
+
     sysid verify campaign.nc --model frequency_domain[,time_domain] --maneuvers '2311_*'
                  [--estimate bias,reference_shift] [--quiet]
 
@@ -34,7 +45,8 @@ from sysid.core.errors import InputDataError
 from sysid.core.util import Progress
 from sysid.data.campaign import CampaignData
 from sysid.data.netcdf import update_campaign, update_campaign_groups
-from sysid.identify.stages import TIME_DOMAIN_STARTS, fit_time_domain
+from sysid.identify.stages import (FILTER_ERROR_PROCESS_NOISE, TIME_DOMAIN_STARTS,
+                                   fit_filter_error, fit_time_domain)
 from sysid.assess.stages import verify_models
 from sysid.assess.verification import ESTIMATES, verification_table
 
@@ -65,6 +77,30 @@ def register(subparsers) -> None:
                    help="do not estimate initial states")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run_identify)
+
+    f = subparsers.add_parser(
+        "identify-filter-error",
+        help="identify a state-space model from time histories flown in turbulence "
+             "(filter error: process and measurement noise)",
+        description="Maximum-likelihood filter-error identification on one or more "
+                    "manoeuvres (steady-state Kalman predictor, process noise Q = F F^T, "
+                    "analytic sensitivities, Cramer-Rao bounds of the innovations and "
+                    "corrected for their colour). No model reduction.",
+    )
+    f.add_argument("campaign", help="campaign netCDF file with /maneuvers/<name> groups")
+    f.add_argument("--maneuvers", default="*",
+                   help="glob selecting the fitted manoeuvres, e.g. '3211_*' (default: all)")
+    f.add_argument("--structure", default="hover_6dof",
+                   help="structure TOML file or built-in name (default: hover_6dof)")
+    f.add_argument("--start", default="auto", choices=TIME_DOMAIN_STARTS,
+                   help="start values, as for identify-time (default auto)")
+    f.add_argument("--process-noise", default=FILTER_ERROR_PROCESS_NOISE,
+                   help="'diagonal' (default: one entry per state equation), 'full' (any "
+                        "covariance) or comma-separated states carrying process noise")
+    f.add_argument("--outputs", default=None,
+                   help="comma-separated fitted outputs (default: all measured)")
+    f.add_argument("--quiet", action="store_true", help="no progress lines")
+    f.set_defaults(func=run_identify_filter_error)
 
     v = subparsers.add_parser(
         "verify",
@@ -97,6 +133,23 @@ def run_identify(args: argparse.Namespace) -> int:
     progress.message(f"[sysid] identify-time: model written to {args.campaign} "
                      f"(/models/time_domain), {len(data.list_maneuvers(args.maneuvers))} "
                      f"manoeuvre(s)")
+    return 0
+
+
+def run_identify_filter_error(args: argparse.Namespace) -> int:
+    progress = Progress(quiet=args.quiet)
+    data = CampaignData.read(args.campaign)
+    outputs = [o.strip() for o in args.outputs.split(",") if o.strip()] if args.outputs else None
+    noise = args.process_noise.strip()
+    if noise not in ("diagonal", "full"):
+        noise = [s.strip() for s in noise.split(",") if s.strip()]
+    result = fit_filter_error(data, maneuvers=args.maneuvers, structure=args.structure,
+                              start=args.start, outputs=outputs, process_noise=noise,
+                              progress=progress)
+    update_campaign(args.campaign, "models/filter_error", result.model)
+    print(result.table())
+    progress.message(f"[sysid] identify-filter-error: model written to {args.campaign} "
+                     f"(/models/filter_error)")
     return 0
 
 

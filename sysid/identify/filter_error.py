@@ -82,7 +82,7 @@ from sysid.core.errors import IdentificationError, InputDataError
 from sysid.core.util import blas_threads
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters, ParameterStatistics,
                                       add_corrected_bounds, coloured_residual_covariance,
-                                      parameter_statistics)
+                                      parameter_rows, parameter_statistics)
 from sysid.identify.time_domain import OutputErrorModel, _delayed, fit_inputs
 from sysid.models import LinearStructure, propagate
 
@@ -168,6 +168,29 @@ class FilterErrorResult(FitResultParameters):
     def J(self) -> float:
         """The cost (negative log-likelihood), named like the other fit results."""
         return self.cost
+
+    def table(self) -> str:
+        """Derivative table with the innovations' Cramer-Rao bounds and the bounds corrected
+        for their colour, the process and measurement noise, the innovations' whiteness."""
+        m = self.model
+        states = [str(s) for s in self.process_noise.state.values]
+        q = np.sqrt(np.diag(self.process_noise.values))
+        white = float(np.max(np.abs(self.whiteness.values)))
+        band = float(self.whiteness.attrs["band"])
+        lines = [f"Filter-error identification ({self.structure.name}) on "
+                 f"{len(self.records)} record(s): {', '.join(self.records)}",
+                 *parameter_rows(m, absolute_cr=True),
+                 "process noise std per step (sqrt diag Q): " + ", ".join(
+                     f"{s} {v:.3g}" for s, v in zip(states, q) if v > 0),
+                 "measurement noise std: " + ", ".join(
+                     f"{o} {math.sqrt(v):.4g}" for o, v in
+                     zip(self.outputs, self.measurement_noise.values)),
+                 f"innovations: largest |autocorrelation| at lags 1-{WHITENESS_LAGS} "
+                 f"{white:.3f} (white within {band:.3f})" + ("" if white <= band else
+                 ": not white, judge the parameters by CRc"),
+                 f"cost (neg. log-likelihood) = {self.cost:.3f}, {self.passes} passes, "
+                 f"{self.cpu_time:.1f} s CPU"]
+        return "\n".join(lines)
 
 
 class _Predictor:
@@ -481,14 +504,21 @@ class _Predictor:
         return J
 
 
-def _noise_mask(process_noise, n: int) -> np.ndarray:
+def _noise_mask(process_noise, states: Sequence[str]) -> np.ndarray:
+    n = len(states)
     if isinstance(process_noise, str):
         if process_noise == "full":
             return np.tril(np.ones((n, n), bool))
         if process_noise == "diagonal":
             return np.eye(n, dtype=bool)
-        raise InputDataError(f"process_noise must be 'full', 'diagonal' or a boolean "
-                             f"(state, state) mask of F, not {process_noise!r}")
+        raise InputDataError(f"process_noise must be 'full', 'diagonal', state names or a "
+                             f"boolean (state, state) mask of F, not {process_noise!r}")
+    if len(process_noise) and all(isinstance(x, str) for x in process_noise):
+        unknown = sorted(set(process_noise) - set(states))
+        if unknown:
+            raise InputDataError(f"process_noise: unknown state(s) {unknown}; the "
+                                 f"structure's states are {list(states)}")
+        return np.diag([s in set(process_noise) for s in states])
     mask = np.asarray(process_noise, bool)
     if mask.shape != (n, n):
         raise InputDataError(f"process_noise mask has shape {mask.shape}; expected "
@@ -536,9 +566,10 @@ def identify_filter_error(records, structure: LinearStructure, *,
         structure's.
     outputs : sequence of str, optional
         Fitted outputs (default: every structure output present in all records).
-    process_noise : {"full", "diagonal"} or bool array (state, state)
+    process_noise : {"full", "diagonal"}, sequence of state names or bool array (state, state)
         Estimated entries of ``F`` (``Q = F F^T``): lower triangle (any ``Q``), diagonal
-        (independent noise per state equation), or a mask.
+        (independent noise per state equation), diagonal on the named states only, or a
+        mask.
     biases, initial_state : bool
         Estimate a bias per output and an initial predictor state per record.
     tol : float
@@ -594,7 +625,7 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
                                  f"{structure.name!r} has {structure.theta0.size} free "
                                  f"parameters {list(structure.free_names)}")
     n = len(structure.states)
-    mask = _noise_mask(process_noise, n)
+    mask = _noise_mask(process_noise, structure.states)
     pred = _Predictor(structure, recs, outs, mask, biases, initial_state)
     n_samples = sum(len(r.time) for r in recs)
     p = len(outs)
