@@ -20,7 +20,7 @@ from sysid.core.units import CONTROLS, STATES_6DOF
 from sysid.data.campaign import CampaignData
 from sysid.flight_test.campaign import default_campaign, run_campaign
 from sysid.spectral.response import frequency_response as spectral_response
-from sysid.identify.stages import fit_frequency_domain, fit_time_domain
+from sysid.identify.stages import fit_filter_error, fit_frequency_domain, fit_time_domain
 from sysid.models import load_structure, residualize_model
 from sysid.pipeline.study import StudySettings
 from sysid.truth import linearize as truth_linearize, trim as truth_trim
@@ -324,6 +324,33 @@ def test_time_domain_hybrid_yaw_damping_agrees_with_the_frequency_domain(hybrid_
                                                                         hybrid_fd):
     td, fd = _figures(hybrid_td.model), _figures(hybrid_fd.model)
     assert _error(fd["N_r"], td["N_r"]) <= DERIVATIVE_TOL, (fd["N_r"], td["N_r"])
+
+
+@pytest.mark.slow  # the filter-error hover_hybrid fit: 136 s of CPU on the default seed
+@pytest.mark.skipif(os.environ.get("SYSID_EXHAUSTIVE") != "1",
+                    reason="the filter-error hover_hybrid fit (136 s of CPU, 415-520 s on "
+                    "seeds 1-2); its sensitivities are checked against central differences "
+                    "in tests/test_identify_filter_error.py; SYSID_EXHAUSTIVE=1 runs it")
+def test_filter_error_hybrid_meets_the_targets(hybrid_campaign, hybrid_fd, hybrid_truth):
+    """Time domain by filter error (process noise, diagonal) with hover_hybrid on the 3211s:
+    all eight derivatives within 15 % of the truth for the structure, the flapping time
+    constant within 20 %, within 15 % of the frequency-domain model on the eight, 2311
+    J_rms <= 1 on every axis (default seed: 10.8 % at most, 10.7 % between the domains,
+    J_rms 0.30-0.85; docs/notes/2026-11-26-filter-error-hybrid.md)."""
+    fe = fit_filter_error(hybrid_campaign, maneuvers="3211_*", structure=HYBRID,
+                          start="linearization")
+    got, fd = _figures(fe.model), _figures(hybrid_fd.model)
+    for name in ("L_p", "M_q", "L_lat", "M_lon", "Z_w", "Z_col", "N_r", "N_ped"):
+        assert _error(got[name], hybrid_truth[name]) <= DERIVATIVE_TOL, \
+            (name, got[name], hybrid_truth[name])
+        assert _error(fd[name], got[name]) <= DERIVATIVE_TOL, (name, fd[name], got[name])
+    for name in ("tau_a1", "tau_b1"):
+        assert _error(got[name], hybrid_truth[name]) <= TAU_F_TOL, \
+            (name, got[name], hybrid_truth[name])
+    j = _verification(hybrid_campaign, {"filter_error": fe.model})
+    assert set(j) == {"2311_lon", "2311_lat", "2311_col", "2311_ped"}
+    for name, per_source in j.items():
+        assert per_source["filter_error"] <= J_RMS_MAX, (name, per_source)
 
 
 # --- 2311 verification of the frequency-domain hybrid model (issue 22) -----------------------
