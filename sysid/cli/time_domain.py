@@ -59,18 +59,7 @@ def register(subparsers) -> None:
                     "manoeuvres (Levenberg-Marquardt, noise covariance re-estimation, "
                     "Cramer-Rao bounds, stepwise model reduction).",
     )
-    p.add_argument("campaign", help="campaign netCDF file with /maneuvers/<name> groups")
-    p.add_argument("--maneuvers", default="*",
-                   help="glob selecting the fitted manoeuvres, e.g. '3211_*' (default: all)")
-    p.add_argument("--structure", default="hover_6dof",
-                   help="structure TOML file or built-in name (default: hover_6dof)")
-    p.add_argument("--start", default="auto",
-                   choices=TIME_DOMAIN_STARTS,
-                   help="start values (default auto: /models/frequency_domain, else "
-                        "/linearization, else the equation error of /frequency_response, "
-                        "else the structure's values)")
-    p.add_argument("--outputs", default=None,
-                   help="comma-separated fitted outputs (default: all measured)")
+    _fit_arguments(p)
     p.add_argument("--no-reduction", action="store_true", help="skip the model reduction")
     p.add_argument("--no-biases", action="store_true", help="do not estimate output biases")
     p.add_argument("--no-initial-state", action="store_true",
@@ -87,18 +76,10 @@ def register(subparsers) -> None:
                     "analytic sensitivities, Cramer-Rao bounds of the innovations and "
                     "corrected for their colour). No model reduction.",
     )
-    f.add_argument("campaign", help="campaign netCDF file with /maneuvers/<name> groups")
-    f.add_argument("--maneuvers", default="*",
-                   help="glob selecting the fitted manoeuvres, e.g. '3211_*' (default: all)")
-    f.add_argument("--structure", default="hover_6dof",
-                   help="structure TOML file or built-in name (default: hover_6dof)")
-    f.add_argument("--start", default="auto", choices=TIME_DOMAIN_STARTS,
-                   help="start values, as for identify-time (default auto)")
+    _fit_arguments(f)
     f.add_argument("--process-noise", default=FILTER_ERROR_PROCESS_NOISE,
                    help="'diagonal' (default: one entry per state equation), 'full' (any "
                         "covariance) or comma-separated states carrying process noise")
-    f.add_argument("--outputs", default=None,
-                   help="comma-separated fitted outputs (default: all measured)")
     f.add_argument("--quiet", action="store_true", help="no progress lines")
     f.set_defaults(func=run_identify_filter_error)
 
@@ -118,6 +99,22 @@ def register(subparsers) -> None:
                         "'none'")
     v.add_argument("--quiet", action="store_true", help="no progress lines")
     v.set_defaults(func=run_verify)
+
+
+def _fit_arguments(parser) -> None:
+    """The campaign, manoeuvres, structure, start values and outputs of a time-domain fit."""
+    parser.add_argument("campaign", help="campaign netCDF file with /maneuvers/<name> groups")
+    parser.add_argument("--maneuvers", default="*",
+                        help="glob selecting the fitted manoeuvres, e.g. '3211_*' (default: "
+                             "all)")
+    parser.add_argument("--structure", default="hover_6dof",
+                        help="structure TOML file or built-in name (default: hover_6dof)")
+    parser.add_argument("--start", default="auto", choices=TIME_DOMAIN_STARTS,
+                        help="start values (default auto: /models/frequency_domain, else "
+                             "/linearization, else the equation error of "
+                             "/frequency_response, else the structure's values)")
+    parser.add_argument("--outputs", default=None,
+                        help="comma-separated fitted outputs (default: all measured)")
 
 
 def run_identify(args: argparse.Namespace) -> int:
