@@ -144,11 +144,6 @@ R_FLOOR = 1e-14
 #: Relaxation: cost evaluations allowed per weighted solve while R still changes by more than
 #: EARLY_R_CHANGE (relative) between outer iterations (see ``_converge``).
 EARLY_NFEV = 3
-
-#: A reduction refit starts from the last fit's quadratic model with the removed parameter
-#: at zero (:func:`sysid.identify.reduction.conditional_start`), not from its other
-#: estimates unchanged.
-CONDITIONAL_START = True
 EARLY_R_CHANGE = 0.02
 #: Relaxation: a change of the negative log-likelihood this small (absolute) counts as
 #: settled whatever ``cost_tol`` says. Weakly determined parameters let successive converged
@@ -185,6 +180,10 @@ SOLVE_SETTLED = 1e-3
 #: The relaxation's solves stop at SOLVE_SETTLED (False: on the solver's own tolerances
 #: ``tol``, as before; the benchmark's baseline).
 RELAXATION_SETTLES = True
+#: A reduction refit starts from the last fit's quadratic model with the removed parameter
+#: at zero (:func:`sysid.identify.reduction.conditional_start`), not from its other
+#: estimates unchanged.
+CONDITIONAL_START = True
 #: Simulated (whitened) values beyond this count as a diverged trial model.
 _HUGE = 1e100
 
