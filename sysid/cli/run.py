@@ -6,7 +6,7 @@ from pathlib import Path
 
 from sysid.core.errors import InputDataError
 from sysid.pipeline.flight_data import FLIGHT_DATA_STRUCTURE, run_flight_data
-from sysid.pipeline.study import StudySettings, run_study
+from sysid.pipeline.study import TIME_DOMAIN_METHODS, StudySettings, run_study
 from sysid.cli._options import add_transient_options, transient_states
 from sysid.cli.io import _pairs, _resample, _trim
 
@@ -47,6 +47,10 @@ def register(subparsers) -> None:
     p.add_argument("--campaign", default=None, help="campaign TOML instead of the built-in")
     p.add_argument("--seed", type=int, default=20261121, help="campaign seed")
     p.add_argument("--no-noise", action="store_true", help="no sensor noise or turbulence")
+    p.add_argument("--time-domain-method", default="output-error",
+                   choices=[m.replace("_", "-") for m in TIME_DOMAIN_METHODS],
+                   help="the time-domain estimator: output error (default, the paper's) or "
+                        "filter error (process noise: turbulence under stabilising loops)")
     add_transient_options(p)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
@@ -63,7 +67,8 @@ def run(args) -> int:
         airspeed_kt=speed if args.speed is None else args.speed,
         structure=args.structure or structure, seed=args.seed, noise=not args.no_noise,
         campaign_file=args.campaign,
-        transient_states=transient_states(args))
+        transient_states=transient_states(args),
+        time_domain_method=args.time_domain_method.replace("-", "_"))
     report = run_study(Path(args.output or folder), settings, quiet=args.quiet)
     print(report.resolve())
     return 0

@@ -58,7 +58,7 @@ from sysid.core.util import Progress, blas_threads
 from sysid.data.campaign import CampaignData
 from sysid.data.netcdf import group_attrs, read_campaign, update_campaign_groups, write_campaign
 from sysid.flight_test.campaign import Campaign, default_campaign, run_campaign
-from sysid.identify.stages import fit_frequency_domain, fit_time_domain
+from sysid.identify.stages import fit_filter_error, fit_frequency_domain, fit_time_domain
 from sysid.models import structure_path
 from sysid.report.html import write_report
 from sysid.spectral.cross_control import campaign_summary
@@ -73,7 +73,7 @@ from sysid.assess.verification import verification_table
 from sysid.truth import build_fmu
 
 __all__ = ["FORWARD_FLIGHT_KT", "FD_COHERENCE_MIN_HOVER", "FD_COHERENCE_MIN_FORWARD",
-           "StudySettings", "PARTS", "METHODS", "QUICK_OMITS", "run_study", "study_tree",
+           "StudySettings", "PARTS", "METHODS", "TIME_DOMAIN_METHODS", "QUICK_OMITS", "run_study", "study_tree",
            "structure_for"]
 
 #: From this airspeed (kt) up the forward-flight structure and coherence admission are used.
@@ -100,6 +100,10 @@ QUICK_OMITS = (
 )
 
 
+#: Estimators of the study's time-domain part (:attr:`StudySettings.time_domain_method`).
+TIME_DOMAIN_METHODS = ("output_error", "filter_error")
+
+
 def structure_for(airspeed_kt: float) -> str:
     """The built-in structure used at ``airspeed_kt`` when none is named."""
     return "hover_6dof" if airspeed_kt < FORWARD_FLIGHT_KT else "forward_6dof"
@@ -118,6 +122,11 @@ class StudySettings:
     #: :data:`FD_COHERENCE_MIN_FORWARD` in forward flight (see there).
     fd_coherence_min: float | None = None
     time_domain_maneuvers: str = "3211_*"
+    #: The time-domain part's estimator (:data:`TIME_DOMAIN_METHODS`): ``"output_error"`` (the
+    #: paper's) or ``"filter_error"`` (process noise for turbulence under feedback; diagonal
+    #: ``F``, no model reduction; docs/methods.md, "Filter error (process noise)"). Either
+    #: model is stored as ``/models/time_domain`` (its ``method`` attribute says which).
+    time_domain_method: str = "output_error"
     verification_maneuvers: str = "2311_*"
     sweep_maneuvers: str = "sweep_*"
     campaign_file: str | None = None  #: a campaign TOML instead of the built-in one
@@ -232,7 +241,12 @@ class _Study:
         self.key_fd = _key("fd", self.key_fr, structure, settings.fd_coherence)
         # The time-domain fit starts from the linearisation, not from the frequency-domain
         # result, so that the two identifications are independent.
-        self.key_td = _key("td", self.key_campaign, structure, settings.time_domain_maneuvers)
+        # (the estimator enters only when it is not the default, so that output-error
+        # studies keep their cache keys)
+        method = (() if settings.time_domain_method == "output_error"
+                  else (settings.time_domain_method,))
+        self.key_td = _key("td", self.key_campaign, structure, settings.time_domain_maneuvers,
+                           *method)
         self.key_models = _key(self.key_fd, self.key_td)
         self.fit_keys = {"frequency_domain": self.key_fd, "time_domain": self.key_td}
 
@@ -380,11 +394,15 @@ class _Study:
     def time_domain(self) -> None:
         settings = self.settings
         self.needs_data("maneuvers", self.key_campaign)
+        if settings.time_domain_method not in TIME_DOMAIN_METHODS:
+            raise SysidError(f"time_domain_method {settings.time_domain_method!r}: expected "
+                             f"one of {TIME_DOMAIN_METHODS}")
+        fit = (fit_filter_error if settings.time_domain_method == "filter_error"
+               else fit_time_domain)
         self.fit("time_domain", "time-domain identification",
-                 lambda: fit_time_domain(self.campaign_data,
-                                         maneuvers=settings.time_domain_maneuvers,
-                                         structure=settings.structure, start=self.td_start,
-                                         progress=self.progress))
+                 lambda: fit(self.campaign_data, maneuvers=settings.time_domain_maneuvers,
+                             structure=settings.structure, start=self.td_start,
+                             progress=self.progress))
 
     def merge_models(self) -> None:
         """Both fits' models into the campaign file, in one write (only what changed)."""
