@@ -20,7 +20,7 @@ import xarray as xr
 from sysid.assess.comparison import DOMINANT
 from sysid.pipeline.batch import (Condition, calibration, combine, conditions, format_calibration,
                                   load_conditions, monte_carlo, plot_calibration, run_batch,
-                                  structure_for)
+                                  structure_for, study_settings)
 from sysid.core.errors import InputDataError
 
 EXHAUSTIVE = os.environ.get("SYSID_EXHAUSTIVE") == "1"
@@ -54,6 +54,15 @@ def test_speeds_file(tmp_path):
         load_conditions(path)
     path.write_text("speeds = ['fast']\n")
     with pytest.raises(InputDataError, match="speeds must be numbers"):
+        load_conditions(path)
+    # the time-domain estimator: in every condition, its name and its study settings
+    path.write_text('speeds = [0]\nseeds = [1, 2]\ntime_domain_method = "filter_error"\n')
+    cs = load_conditions(path)
+    assert [c.name for c in cs] == ["0kt_seed1_filter_error", "0kt_seed2_filter_error"]
+    assert study_settings(cs[0], tmp_path).time_domain_method == "filter_error"
+    assert Condition(0.0).time_domain_method == "output_error"
+    path.write_text('speeds = [0]\ntime_domain_method = "kalman"\n')
+    with pytest.raises(InputDataError, match="time_domain_method 'kalman'; expected one of"):
         load_conditions(path)
 
 

@@ -85,7 +85,8 @@ from sysid.core.util import Progress, atomic_path
 from sysid.data.netcdf import read_campaign
 from sysid.flight_test.campaign import default_campaign
 from sysid.models import parameter_values
-from sysid.pipeline.study import (FORWARD_FLIGHT_KT, METHODS, PARTS, QUICK_OMITS, StudySettings,
+from sysid.pipeline.study import (FORWARD_FLIGHT_KT, METHODS, PARTS, QUICK_OMITS,
+                                  TIME_DOMAIN_METHODS, StudySettings,
                                   run_study, structure_for)
 from sysid.truth import build_fmu
 
@@ -109,6 +110,8 @@ class Condition:
     noise: bool = True
     structure: str | None = None
     quick: bool = False
+    #: The study's time-domain estimator (:data:`~sysid.pipeline.study.TIME_DOMAIN_METHODS`).
+    time_domain_method: str = "output_error"
 
     @property
     def name(self) -> str:
@@ -117,6 +120,8 @@ class Condition:
             text += "_nonoise"
         if self.quick:
             text += "_quick"
+        if self.time_domain_method != "output_error":
+            text += "_" + self.time_domain_method
         if self.structure:
             text += "_" + Path(str(self.structure)).stem
         return text
@@ -131,7 +136,8 @@ class Condition:
 
 def conditions(speeds: Iterable[float] = DEFAULT_SPEEDS, seeds: Iterable[int] = (20261121,),
                *, noise: bool = True, quick: bool = False,
-               structures: dict[str, tuple[float, float]] | None = None) -> list[Condition]:
+               structures: dict[str, tuple[float, float]] | None = None,
+               time_domain_method: str = "output_error") -> list[Condition]:
     """Every (speed, seed) combination as a :class:`Condition`.
 
     ``structures`` maps a structure (built-in name or TOML path) to an airspeed band
@@ -145,7 +151,8 @@ def conditions(speeds: Iterable[float] = DEFAULT_SPEEDS, seeds: Iterable[int] = 
                 structure = name
                 break
         for s in seeds:
-            out.append(Condition(float(v), int(s), bool(noise), structure, bool(quick)))
+            out.append(Condition(float(v), int(s), bool(noise), structure, bool(quick),
+                                 time_domain_method))
     return out
 
 
@@ -156,6 +163,7 @@ def load_conditions(path: str | Path) -> list[Condition]:
         seeds = [20261121, 1, 2]            # one condition per speed and seed (default one)
         noise = true                        # sensor noise and turbulence (default true)
         quick = false                       # reduced campaign and study (default false)
+        time_domain_method = "output_error" # or "filter_error" (default output_error)
 
         [structures]                        # optional: structure -> airspeed band [from, to) kt
         hover_6dof = [0, 30]
@@ -171,7 +179,8 @@ def load_conditions(path: str | Path) -> list[Condition]:
         spec = tomllib.loads(path.read_text())
     except (OSError, tomllib.TOMLDecodeError) as exc:
         raise InputDataError(f"cannot read speeds file {path}: {exc}") from None
-    known = {"speeds", "seeds", "noise", "quick", "structures", "conditions"}
+    known = {"speeds", "seeds", "noise", "quick", "structures", "conditions",
+             "time_domain_method"}
     unknown = set(spec) - known
     if unknown:
         raise InputDataError(f"speeds file {path}: unknown keys {sorted(unknown)}; "
@@ -184,8 +193,13 @@ def load_conditions(path: str | Path) -> list[Condition]:
     except (TypeError, ValueError, IndexError) as exc:
         raise InputDataError(f"speeds file {path}: speeds must be numbers (kt), seeds "
                              f"integers and structures name = [from, to] in kt ({exc})") from None
+    method = str(spec.get("time_domain_method", "output_error"))
+    if method not in TIME_DOMAIN_METHODS:
+        raise InputDataError(f"speeds file {path}: time_domain_method {method!r}; expected "
+                             f"one of {TIME_DOMAIN_METHODS}")
     out = conditions(speeds, seeds, noise=bool(spec.get("noise", True)),
-                     quick=bool(spec.get("quick", False)), structures=bands)
+                     quick=bool(spec.get("quick", False)), structures=bands,
+                     time_domain_method=method)
     fields = {f.name for f in dataclasses.fields(Condition)}
     for k, item in enumerate(spec.get("conditions", [])):
         bad = set(item) - fields
@@ -225,7 +239,8 @@ def study_settings(condition: Condition, folder: str | Path):
         campaign_file = str(campaign_file)
     return StudySettings(airspeed_kt=condition.airspeed_kt, seed=condition.seed,
                          noise=condition.noise, structure=condition.structure_name,
-                         campaign_file=campaign_file, quick=condition.quick)
+                         campaign_file=campaign_file, quick=condition.quick,
+                         time_domain_method=condition.time_domain_method)
 
 
 def _marker(folder: Path) -> Path:
@@ -601,6 +616,7 @@ def combine(conditions: Sequence[Condition], records: Sequence[dict]) -> xr.Data
         noise=("condition", np.array([int(c.noise) for c in conditions], dtype="int8")),
         quick=("condition", np.array([int(c.quick) for c in conditions], dtype="int8")),
         structure=("condition", [c.structure_name for c in conditions]),
+        time_domain_method=("condition", [c.time_domain_method for c in conditions]),
         status=("condition", [by_name[n]["status"] for n in names]),
         error=("condition", [(f"{by_name[n]['error_type']}: {by_name[n]['message']}"
                               if by_name[n]["status"] != "ok" else "") for n in names]),
