@@ -45,7 +45,9 @@ M_w, Z_u, L_v, N_v ... free); a condition or a speeds file can name another.
 The ``batch.nc`` Dataset (dims ``condition``, ``model`` (the identification method), ``parameter``):
 
 - coords on ``condition``: ``airspeed_kt``, ``seed``, ``noise`` (0/1), ``structure``,
-  ``status`` (``ok``/``failed``), ``error`` (type: message, "" when ok), ``elapsed_s``;
+  ``time_domain_method`` (the estimator of the ``time_domain`` model: output or filter
+  error), ``status`` (``ok``/``failed``), ``error`` (type: message, "" when ok),
+  ``elapsed_s``;
 - ``value``, ``cramer_rao`` (absolute), ``cramer_rao_percent`` (condition, model, parameter):
   identified parameters (derivatives and delays), NaN where a method did not estimate it;
   ``cramer_rao_corrected`` (same dims): the bound corrected for coloured residuals (time
