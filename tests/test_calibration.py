@@ -11,8 +11,13 @@ quasi-steady structure's repeatable misfit as noise; time domain: corrected); th
 conventions themselves are checked on known systems in tests/test_bound_calibration.py.
 Measured (docs/notes/2026-11-25-fd-selection-bootstrap-bound.md, 20 seeds): frequency domain
 0.47-1.05 (7 of 8 in the band, M_lon 0.47; the random-error bound alone 1.57-6.27), time
-domain corrected 1.32-2.87 with Z_w 5.70 (two solution branches), N_r 2.49 and N_ped 2.87
-(closed-loop holds): the goal is not reached, so the test is a strict xfail that says so.
+domain (output error) corrected 1.32-2.87 with Z_w 5.70 (two solution branches), N_r 2.49
+and N_ped 2.87 (closed-loop holds). Since the reduction's refits start at the conditional
+minimum the frequency-domain estimates scatter less and the same bound is conservative:
+0.24-1.14, 3 of 8 (docs/notes/2026-11-26-filter-error-truth-calibration.md). The goal is
+not reached, so the test is a strict xfail that says so. With filter error as the
+time-domain estimator its corrected bounds are in the band for all eight (0.90-1.81, the
+same note): the second test checks that domain alone.
 The full set runs with SYSID_EXHAUSTIVE=1 (about 20 studies: an hour or more on 2 cores);
 the default suite runs the reduced form inside tests/test_batch.py (two quick hover
 seeds), which checks the machinery and the stored figures. Measured ratios:
@@ -45,7 +50,8 @@ def test_scoreboard_bounds_are_calibrated_in_both_domains():
 @pytest.mark.skipif(not EXHAUSTIVE, reason="20 full hover studies; the reduced form runs in "
                                            "tests/test_batch.py (SYSID_EXHAUSTIVE=1 runs this)")
 @pytest.mark.xfail(strict=True, reason="goal not reached (module docstring): frequency domain "
-                   "M_lon 0.47, time domain corrected Z_w 5.70, N_r 2.49, N_ped 2.87")
+                   "total 0.24-1.14 (conservative since the conditional refit start), time "
+                   "domain corrected Z_w 5.70, N_r 2.49, N_ped 2.87")
 def test_bounds_match_the_scatter_over_twenty_hover_seeds(tmp_path, truth_fmu):
     result = run_batch(conditions([0.0], seeds=range(1, N_SEEDS + 1)), tmp_path, n_workers=2,
                        quiet=True)
@@ -58,3 +64,22 @@ def test_bounds_match_the_scatter_over_twenty_hover_seeds(tmp_path, truth_fmu):
     for bound in SCOREBOARD_BOUNDS:
         ratio = cal["calibration_ratio"].sel(bound=bound, dominant=list(DOMINANT)).values
         assert np.all((ratio >= lo) & (ratio <= hi)), (bound, table)
+
+
+@pytest.mark.slow
+@pytest.mark.fmu
+@pytest.mark.skipif(not EXHAUSTIVE, reason="20 full hover studies with filter error (about 8 "
+                                           "min on 2 cores; SYSID_EXHAUSTIVE=1 runs this)")
+def test_filter_error_bounds_match_the_scatter_over_twenty_hover_seeds(tmp_path, truth_fmu):
+    """The time-domain part by filter error (diagonal process noise): its bounds corrected
+    for coloured innovations within 0.5-2 of the seed-to-seed scatter for every dominant
+    derivative (measured 0.90-1.81, module docstring)."""
+    result = run_batch(conditions([0.0], seeds=range(1, N_SEEDS + 1),
+                                  time_domain_method="filter_error"),
+                       tmp_path, n_workers=2, quiet=True)
+    assert not result.failures, result.failures
+    cal = result.dataset.sel(calibration_kt=0.0)
+    ratio = cal["calibration_ratio"].sel(bound="time_domain_corrected",
+                                         dominant=list(DOMINANT)).values
+    lo, hi = CALIBRATION_GOAL
+    assert np.all((ratio >= lo) & (ratio <= hi)), format_calibration(result.dataset)
