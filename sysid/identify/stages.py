@@ -55,7 +55,7 @@ TIME_DOMAIN_STARTS = ("auto", "frequency_domain", "linearization", "equation-err
 
 
 def start_values(data: CampaignData, structure: LinearStructure, kind: str, *,
-                 fit: str, progress: Progress | None = None
+                 fit: str, progress: Progress | None = None, label: str | None = None
                  ) -> xr.Dataset | np.ndarray | None:
     """Start values of a fit chosen by ``kind`` from what the campaign holds.
 
@@ -64,14 +64,15 @@ def start_values(data: CampaignData, structure: LinearStructure, kind: str, *,
     or the truth linearisation over the structure's states), the structure's parameter
     vector, or None for the fit's own default (equation error in the frequency domain, the
     structure's values in the time domain). A start that ``kind`` insists on and the
-    campaign lacks raises :class:`~sysid.core.errors.InputDataError`.
+    campaign lacks raises :class:`~sysid.core.errors.InputDataError`. ``label`` names the
+    command in the progress lines (default by ``fit``).
     """
     progress = progress or Progress(quiet=True)
     choices = FREQUENCY_DOMAIN_STARTS if fit == "frequency_domain" else TIME_DOMAIN_STARTS
     if fit not in ("frequency_domain", "time_domain") or kind not in choices:
         raise InputDataError(f"start values {kind!r} for the {fit} fit: expected one of "
                              f"{choices}")
-    label = "identify" if fit == "frequency_domain" else "identify-time"
+    label = label or ("identify" if fit == "frequency_domain" else "identify-time")
     if fit == "time_domain" and kind in ("auto", "frequency_domain"):
         if data.has("models/frequency_domain"):
             progress.message(f"[sysid] {label}: start values from /models/frequency_domain")
@@ -183,7 +184,8 @@ def fit_filter_error(data: CampaignData, *, maneuvers: str = "*",
     result's ``model`` records the campaign in attribute ``campaign_file``."""
     records = list(data.maneuvers(maneuvers).values())
     loaded = load_structure(structure, trim=data.trim(maneuvers))
-    begin = start_values(data, loaded, start, fit="time_domain", progress=progress)
+    begin = start_values(data, loaded, start, fit="time_domain", progress=progress,
+                         label="identify-filter-error")
     if progress is not None:
         progress.message(f"[sysid] identify-filter-error: {len(records)} record(s), "
                          f"{len(loaded.free_index)} parameters, process noise "
