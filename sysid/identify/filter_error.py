@@ -84,7 +84,7 @@ from sysid.identify.statistics import (ColouredBounds, FitResultParameters, Para
                                       add_corrected_bounds, coloured_residual_covariance,
                                       parameter_rows, parameter_statistics)
 from sysid.identify.time_domain import OutputErrorModel, _delayed, fit_inputs
-from sysid.models import LinearStructure, propagate
+from sysid.models import LinearStructure, discretize, propagate
 
 __all__ = ["FilterErrorResult", "identify_filter_error", "WHITENESS_LAGS"]
 
@@ -372,9 +372,7 @@ class _Predictor:
         n, G = Bg.shape
         Mx = np.zeros((n + G, n + G))
         Mx[:n, :n], Mx[:n, n:] = A * dt, Bg * dt
-        MI = np.zeros((2 * n, 2 * n))
-        MI[:n, :n], MI[:n, n:] = A * dt, np.eye(n) * dt
-        Psi = scipy.linalg.expm(MI)[:n, n:]
+        Psi = discretize(A, np.eye(n), dt)[1]  # int_0^dt e^(As) ds
         dPhi = np.zeros((self.n_theta, n, n))
         dGam = np.zeros((self.n_theta, n, G))
         for j, dm in enumerate(self._dmat):

@@ -124,7 +124,7 @@ from sysid.identify.statistics import (ColouredBounds, FitResultParameters,
                                       coloured_residual_covariance,
                                       parameter_rows, parameter_statistics,
                                       perturbed_start)
-from sysid.models import LinearStructure, propagate
+from sysid.models import LinearStructure, discretize, propagate
 
 __all__ = [
     "MAX_COST_INCREASE",
@@ -430,10 +430,7 @@ class OutputErrorModel:
         E = scipy.linalg.expm(M)
         out = {"Phi": E[:n, :n], "Gam": E[:n, n:]}
         if jacobian:
-            MI = np.zeros((2 * n, 2 * n))
-            MI[:n, :n] = A * dt
-            MI[:n, n:] = np.eye(n) * dt
-            out["Psi"] = scipy.linalg.expm(MI)[:n, n:]
+            out["Psi"] = discretize(A, np.eye(n), dt)[1]  # int_0^dt e^(As) ds
             dA = []
             for kind in self.kind:
                 if kind[0] == "A":
