@@ -82,7 +82,7 @@ import json
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
+from typing import Mapping, NamedTuple, Sequence
 
 import numpy as np
 import scipy.optimize
@@ -98,7 +98,7 @@ from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters,
                                       ParameterStatistics, coloured_residual_covariance,
                                       on_parameters, parameter_rows, parameter_statistics,
-                                      perturbed_start)
+                                      perturbed_start, robust_scale)
 from sysid.models import LinearStructure
 from sysid.spectral.composite import trusted as composite_trusted
 from sysid.core.util import Deadline, Progress
@@ -123,6 +123,7 @@ __all__ = [
     "coherence_correlation_width",
     "perturbed_coherence",
     "selection_bounds",
+    "SelectionScatter",
     "FrequencyFitResult",
     "identify_frequency_domain",
 ]
@@ -800,21 +801,37 @@ def perturbed_coherence(fr: xr.Dataset, *, seed: int) -> xr.Dataset:
     return out
 
 
+class SelectionScatter(NamedTuple):
+    """What :func:`selection_bounds` returns: ``bound`` (n_parameter,), the robust standard
+    deviation over the draws; ``fitted``, the number of draws counted; ``outlying``
+    (n_parameter,), the fraction of them more than
+    :data:`sysid.identify.statistics.OUTLYING_SCALES` bounds from the median."""
+
+    bound: np.ndarray
+    fitted: int
+    outlying: np.ndarray
+
+
 def selection_bounds(fr: xr.Dataset, structure: LinearStructure, theta, *, draws: int,
-                     seed: int, selection: Mapping, fit: Mapping) -> tuple[np.ndarray, int]:
+                     seed: int, selection: Mapping, fit: Mapping) -> SelectionScatter:
     """Scatter of the estimate caused by the choice of the fitted points (shape
-    (n_parameter,), one standard deviation) and the number of draws that fitted.
+    (n_parameter,), one standard deviation), the number of draws that fitted and the
+    fraction of them outlying.
 
     The fitted ranges follow a threshold on the measured coherence, which is itself an
     estimate; under a structure's misfit the estimate depends on the points, so another
     realisation of the coherence moves it. Each of ``draws`` draws re-selects the points
     (``selection``: the keywords of :func:`select_fit_data`) on
     :func:`perturbed_coherence` and refits ``structure`` from ``theta`` (``fit``: the
-    keywords of the fit); the standard deviation over the draws is the bound. A draw whose
-    fit runs away (:func:`runaway_parameters`; the fit would anchor it, i.e. change the
-    structure) or fails (including past the fit's time limit) is not counted. Added in
-    quadrature to the random-error bound it is the bound the scoreboard judges on
-    (docs/methods.md, "Accuracy").
+    keywords of the fit); the robust standard deviation over the draws
+    (:func:`sysid.identify.statistics.robust_scale`) is the bound. Robust because a draw
+    starts from coherence that already carries its own error, so it carries it twice: the
+    coherent run splits more often than between real data sets, and such refits jump
+    (docs/notes/2026-11-26-robust-selection-bound.md); the fraction of outlying draws is
+    reported beside the bound. A draw whose fit runs away (:func:`runaway_parameters`; the
+    fit would anchor it, i.e. change the structure) or fails (including past the fit's time
+    limit) is not counted. Added in quadrature to the random-error bound it is the bound the
+    scoreboard judges on (docs/methods.md, "Accuracy").
 
     References
     ----------
@@ -833,8 +850,10 @@ def selection_bounds(fr: xr.Dataset, structure: LinearStructure, theta, *, draws
         if not runaway_parameters(structure.free_names, c.theta, theta, c.statistics):
             estimates.append(c.theta)
     if len(estimates) < 2:
-        return np.full(theta.size, np.nan), len(estimates)
-    return np.std(np.asarray(estimates), axis=0, ddof=1), len(estimates)
+        missing = np.full(theta.size, np.nan)
+        return SelectionScatter(missing, len(estimates), missing)
+    bound, outlying = robust_scale(np.asarray(estimates), axis=0)
+    return SelectionScatter(bound, len(estimates), outlying)
 
 
 # --------------------------------------------------------------------------------------------
@@ -1182,7 +1201,7 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
                                     final.statistics.covariance)
     noise = random_error_bounds(final.structure, data, final.theta,
                                 final.statistics.covariance)
-    chosen = (np.full(final.theta.size, np.nan), 0)
+    chosen = None
     if selection_draws > 0 and final.theta.size:
         with progress.stage(f"point-selection bootstrap ({selection_draws} refits)"):
             chosen = selection_bounds(fr, final.structure, final.theta, draws=selection_draws,
@@ -1201,7 +1220,7 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
 def _model_dataset(final: _Converged, data: FitData, reduction, start_kind, restart, counter,
                    fr, elapsed, method, scaled: ColouredBounds | None = None,
                    noise: np.ndarray | None = None,
-                   chosen: tuple[np.ndarray, int] | None = None) -> xr.Dataset:
+                   chosen: SelectionScatter | None = None) -> xr.Dataset:
     st = final.structure
     attrs = {
         "method": "frequency_domain",
@@ -1261,11 +1280,15 @@ def _model_dataset(final: _Converged, data: FitData, reduction, start_kind, rest
     ds["cramer_rao_noise"] = ("parameter", cr_n, {
         "long_name": "bound from the spectral random error of the fitted points (one standard "
                      "deviation; measurement noise only)"})
-    selected, fitted = chosen if chosen is not None else (None, 0)
+    selected, fitted, outlying = (None, 0, None) if chosen is None else chosen
     cr_s = on_parameters(ds.parameter.values, st.free_names, selected)
     ds["cramer_rao_selection"] = ("parameter", cr_s, {
-        "long_name": "scatter of the estimate over re-selections of the fitted points from "
-                     "the coherence's random error (one standard deviation)"})
+        "long_name": "robust scatter of the estimate over re-selections of the fitted points "
+                     "from the coherence's random error (one standard deviation)"})
+    ds["selection_outlying"] = ("parameter", on_parameters(ds.parameter.values, st.free_names,
+                                                           outlying), {
+        "long_name": "fraction of the point re-selections whose estimate lies more than 3 "
+                     "selection bounds from their median", "units": "1"})
     ds["cramer_rao_total"] = ("parameter", np.hypot(cr_n, cr_s), {
         "long_name": "random-error and point-selection bounds in quadrature (one standard "
                      "deviation; the bound the fidelity scoreboard judges on)"})

@@ -51,8 +51,14 @@ from sysid.core.guidelines import CR_MAX_PERCENT, INSENSITIVITY_MAX_PERCENT
 
 __all__ = ["ParameterStatistics", "parameter_statistics", "correlated_pairs",
            "residual_autocorrelation", "correlation_lag", "coloured_residual_covariance",
-           "ColouredBounds", "guideline_mark"]
+           "ColouredBounds", "guideline_mark", "robust_scale", "OUTLYING_SCALES"]
 
+#: Consistency factor of the median absolute deviation: ``1.4826 MAD`` estimates the
+#: standard deviation of a normal sample (Rousseeuw & Croux 1993).
+MAD_TO_STD = 1.4826
+#: A draw further than this many robust scales from the median counts as outlying
+#: (:func:`robust_scale`), as in the usual 3-sigma outlier rule.
+OUTLYING_SCALES = 3.0
 #: Multiple of the white-noise standard error ``1/sqrt(N)`` of a normalised autocorrelation
 #: estimate below which the residual autocorrelation counts as decayed
 #: (:func:`correlation_lag`): 2 is the usual 95 % whiteness band (Klein & Morelli 2006, 5.5).
@@ -294,7 +300,8 @@ def parameter_statistics(jacobian, values, names: Sequence[str], *, scale: float
     with np.errstate(divide="ignore"):
         insensitivity = np.where(col_ok, 1.0 / np.sqrt(np.where(col_ok, diag, 1.0)), np.inf)
     absval = np.abs(values)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    # tiny |value| overflows the percentage to inf, which is what it is
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         cr_pct = np.where(absval > 0, 100.0 * cramer_rao / absval, np.inf)
         in_pct = np.where(absval > 0, 100.0 * insensitivity / absval, np.inf)
         sd = np.sqrt(np.where(identifiable, var, np.nan))
@@ -543,3 +550,33 @@ def coloured_residual_covariance(*, sensitivities: Sequence[np.ndarray],
         cov[np.ix_(ok, ok)] = Mi @ B[np.ix_(ok, ok)] @ Mi
     cr = np.where(ok, np.sqrt(np.abs(np.diag(cov))), np.inf)
     return ColouredBounds(cov, cr, int(decay), int(window))
+
+
+def robust_scale(samples, axis: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Robust standard deviation of ``samples`` along ``axis`` and the fraction of samples
+    outlying from it.
+
+    ``s = 1.4826 median |x - median x|`` (the normalised median absolute deviation): the
+    standard deviation for normal samples, but unmoved by a minority of samples far from
+    the rest; the fraction is that of samples more than :data:`OUTLYING_SCALES` ``s`` from
+    the median (0 where ``s = 0``). Shapes: ``samples`` (..., n, ...) -> two arrays without
+    ``axis``. Its efficiency at the normal is 37 %, so from 20 samples ``s`` is known to about
+    27 % (the plain standard deviation to 16 %).
+
+    References
+    ----------
+    P. J. Rousseeuw and C. Croux, "Alternatives to the median absolute deviation",
+    *J. Amer. Statist. Assoc.* 88 (1993) 1273-1283.
+
+    Examples
+    --------
+    >>> s, out = robust_scale(np.array([-1.0, 0.0, 1.0, 0.5, -0.5, 40.0]))
+    >>> round(float(s), 3), round(float(out), 3)
+    (1.112, 0.167)
+    """
+    x = np.asarray(samples, float)
+    centre = np.median(x, axis=axis, keepdims=True)
+    scale = MAD_TO_STD * np.median(np.abs(x - centre), axis=axis, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        outlying = np.where(scale > 0, np.abs(x - centre) > OUTLYING_SCALES * scale, False)
+    return np.squeeze(scale, axis=axis), outlying.mean(axis=axis)

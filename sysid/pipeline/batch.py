@@ -53,8 +53,9 @@ The ``batch.nc`` Dataset (dims ``condition``, ``model`` (the identification meth
   ``cramer_rao_corrected`` (same dims): the bound corrected for coloured residuals (time
   domain) or scaled by the fit residuals (frequency domain, over its fitted points);
   ``cramer_rao_noise``: the frequency-domain bound from the spectral random error;
-  ``cramer_rao_selection``: its scatter over point re-selections; ``cramer_rao_total``: the
-  two in quadrature (the one the fidelity scoreboard judges on);
+  ``cramer_rao_selection``: its robust scatter over point re-selections and
+  ``selection_outlying`` the fraction of re-selections beyond 3 of it; ``cramer_rao_total``:
+  the two bounds in quadrature (the one the fidelity scoreboard judges on);
 - the Monte Carlo calibration of the bounds (:func:`calibration`; with at least two
   successful seeds at an airspeed), dims ``calibration_kt`` x ``dominant`` (the dominant
   derivatives, :data:`sysid.assess.comparison.DOMINANT`) x ``bound``
@@ -403,7 +404,7 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
 
 
 #: The bounds a condition's models carry into batch.nc (absolute unless said), with their
-#: attributes.
+#: attributes, and the point selection's outlying fraction beside them.
 _BOUND_VARIABLES = {
     "cramer_rao": {"long_name": "plain Cramer-Rao bound"},
     "cramer_rao_percent": {"units": "%"},
@@ -412,6 +413,8 @@ _BOUND_VARIABLES = {
     "cramer_rao_selection": {"long_name": "frequency-domain scatter over point re-selections"},
     "cramer_rao_total": {"long_name": "frequency-domain random-error and selection bounds in "
                                       "quadrature"},
+    "selection_outlying": {"long_name": "fraction of the point re-selections more than 3 "
+                                        "selection bounds from their median", "units": "1"},
 }
 
 
