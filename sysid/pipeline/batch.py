@@ -457,10 +457,12 @@ def _client(scheduler: str | None, n_workers: int, quiet: bool):
 
 
 #: Dask priority of each part's task (higher first): the parts that start the longest chain
-#: of work go first (critical path first; a quick 80-kt condition's parts take about 6, 6.5,
-#: 3 and 5 s of CPU), so the batch ends on short result parts on both workers rather than on
-#: one condition's fits and results on one worker.
-PART_PRIORITY = {"data": 3, "time_domain": 2, "frequency_domain": 1, "results": 0}
+#: of work go first (critical path first: the campaign, then the frequency-domain fit, the
+#: longer and more variable of the two fits, 3-13 s of CPU on a quick 80-kt condition
+#: against the time domain's 2-6 s), so the batch ends on short result parts on both workers
+#: rather than on one condition's fits and results on one worker
+#: (docs/notes/2026-11-26-batch-frequency-domain-first.md).
+PART_PRIORITY = {"data": 3, "frequency_domain": 2, "time_domain": 1, "results": 0}
 
 
 def _submit_part(client, condition: Condition, folder: Path, part: str, fail: str | None,
