@@ -83,7 +83,8 @@ from sysid.core.util import blas_threads
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters, ParameterStatistics,
                                       add_corrected_bounds, coloured_residual_covariance,
                                       parameter_rows, parameter_statistics)
-from sysid.identify.time_domain import OutputErrorModel, _delayed, fit_inputs
+from sysid.identify.time_domain import (COST_SETTLED, SOLVE_SETTLED, OutputErrorModel,
+                                        _delayed, _predicted_decrease, _Settled, fit_inputs)
 from sysid.models import LinearStructure, discretize, propagate
 
 __all__ = ["FilterErrorResult", "identify_filter_error", "WHITENESS_LAGS"]
@@ -93,6 +94,10 @@ WHITENESS_LAGS = 10
 #: Innovation sensitivities by finite differences (forward in the solver, central for the
 #: bounds) instead of the analytic ones: the first implementation, kept for A/B comparison.
 FINITE_DIFFERENCES = False
+#: Each relaxation solve at fixed Sigma stops where its Gauss-Newton model predicts less than
+#: SOLVE_SETTLED of further decrease of L, as the output-error fit's (False: on the solver's
+#: own tolerances; docs/notes/2026-11-26-filter-error-settled-solves.md).
+SETTLED_SOLVES = True
 #: Whitened residual returned for every sample of a trial model whose Riccati equation has
 #: no stabilising solution (the solver then rejects the step).
 _FAILED_RESIDUAL = 1e6
@@ -219,6 +224,7 @@ class _Predictor:
         self._disc = (None, None)  #: (theta, discrete model) of the last evaluation
         self._state = (None, None)  #: (beta, predictor states) of the last evaluation
         self._comp = (None, None)  #: (beta, compressed problem) of the last evaluation
+        self.settle = None  #: (lower, upper) of beta: a solve stops at SOLVE_SETTLED
         self._dmat = self._matrix_derivatives()
 
     def names(self, outputs) -> list[str]:
@@ -341,8 +347,18 @@ class _Predictor:
         return self._compressed(beta)[0]
 
     def compressed_jacobian(self, beta, *_) -> np.ndarray:
-        """``[R_J; 0]`` (n_beta + 1, n_beta) of :meth:`compressed_residuals`."""
-        return self._compressed(beta)[1]
+        """``[R_J; 0]`` (n_beta + 1, n_beta) of :meth:`compressed_residuals`. The solver asks
+        for it at each accepted iterate; with ``self.settle = (lower, upper)`` it raises
+        ``_Settled`` there when the Gauss-Newton model predicts less than
+        :data:`~sysid.identify.time_domain.SOLVE_SETTLED` of further decrease of ``L`` (at
+        fixed ``Sigma`` half the squared whitened innovations)."""
+        f, Jf = self._compressed(beta)
+        if self.settle is not None and np.all(np.isfinite(f)):
+            RJ, q = Jf[:-1], f[:-1]
+            if _predicted_decrease(self.settle, np.asarray(beta, float), RJ.T @ q, RJ.T @ RJ,
+                                   0.5 * float(q @ q)) < SOLVE_SETTLED:
+                raise _Settled(beta)
+        return Jf
 
     def _compressed(self, beta):
         beta = np.asarray(beta, float)
@@ -544,7 +560,8 @@ def identify_filter_error(records, structure: LinearStructure, *,
                           start: xr.Dataset | np.ndarray | None = None,
                           outputs: Sequence[str] | None = None, process_noise="full",
                           biases: bool = True, initial_state: bool = True,
-                          tol: float = 1e-8, max_passes: int = 30, cost_tol: float = 1e-3,
+                          tol: float = 1e-8, max_passes: int = 30,
+                          cost_tol: float = COST_SETTLED,
                           max_nfev: int | None = None) -> FilterErrorResult:
     """Identify a structure from time histories flown in turbulence by the filter-error
     method (maximum likelihood with process and measurement noise; module docstring).
@@ -573,8 +590,9 @@ def identify_filter_error(records, structure: LinearStructure, *,
     tol : float
         ``ftol = xtol = gtol`` of each Levenberg-Marquardt solve.
     max_passes, cost_tol
-        Relaxation: at most ``max_passes`` (solve, ``Sigma`` update) cycles; stop
-        when ``L`` changes by less than ``cost_tol`` (absolute).
+        Relaxation: at most ``max_passes`` (solve, ``Sigma`` update) cycles; stop when a
+        pass changes ``L`` by less than ``cost_tol`` (absolute; default the output-error
+        fit's ``COST_SETTLED``, 0.01).
     max_nfev : int, optional
         Cost evaluations per solve (default scipy's).
 
@@ -677,13 +695,16 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
     cost_prev, passes = math.inf, 0
     fun, jac = ((pred.residuals, "2-point") if FINITE_DIFFERENCES else
                 (pred.compressed_residuals, pred.compressed_jacobian))
+    pred.settle = (lower, upper) if SETTLED_SOLVES and not FINITE_DIFFERENCES else None
     for passes in range(1, max_passes + 1):
         pred.whitener = np.linalg.inv(np.linalg.cholesky(Sigma))
         pred._comp = (None, None)  # whitened by the previous Sigma
-        sol = scipy.optimize.least_squares(fun, beta, method=method, jac=jac,
-                                           bounds=bounds, x_scale="jac", ftol=tol,
-                                           xtol=tol, gtol=tol, max_nfev=max_nfev)
-        beta = sol.x
+        try:
+            beta = scipy.optimize.least_squares(fun, beta, method=method, jac=jac,
+                                                bounds=bounds, x_scale="jac", ftol=tol,
+                                                xtol=tol, gtol=tol, max_nfev=max_nfev).x
+        except _Settled as settled:
+            beta = settled.theta
         E, Sigma, cost = innovations(beta, "at the end of a solve")
         if abs(cost_prev - cost) < cost_tol:
             break

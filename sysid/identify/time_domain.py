@@ -700,7 +700,7 @@ class OutputErrorModel:
         f, J = self._compressed(theta)
         if self.settle and np.all(np.isfinite(f)):
             RJ = J[:-1]
-            ev.decrease = _predicted_decrease(self.structure, ev.theta, RJ.T @ f[:-1],
+            ev.decrease = _predicted_decrease(self.structure.bounds, ev.theta, RJ.T @ f[:-1],
                                               RJ.T @ RJ, 0.5 * float(f[:-1] @ f[:-1]))
             if ev.decrease < SOLVE_SETTLED:
                 raise _Settled(ev.theta)
@@ -797,7 +797,7 @@ class OutputErrorModel:
         gauss_newton = factor(H) if down is not None else None
         gauss_newton = gauss_newton or (q, RJ)
         ev.decrease = _predicted_decrease(
-            self.structure, ev.theta, ev.gradient, gauss_newton[1].T @ gauss_newton[1],
+            self.structure.bounds, ev.theta, ev.gradient, gauss_newton[1].T @ gauss_newton[1],
             0.5 * float(gauss_newton[0] @ gauss_newton[0]))
         secant = factor(H + ev.secant) if ev.secant is not None else None
         return secant or gauss_newton
@@ -872,19 +872,23 @@ class _Settled(_Stop):
     """A solve has converged at ``theta`` (an accepted iterate)."""
 
 
-def _predicted_decrease(structure: LinearStructure, theta: np.ndarray, g: np.ndarray,
-                        M: np.ndarray, unconstrained: float) -> float:
+def _predicted_decrease(bounds: tuple[np.ndarray, np.ndarray], theta: np.ndarray,
+                        g: np.ndarray, M: np.ndarray, unconstrained: float) -> float:
     """Decrease ``1/2 g^T M^-1 g`` of a Gauss-Newton model (gradient ``g``, matrix ``M``)
-    over the parameters not held at a bound (within 1e-3 of its range, the gradient pushing
-    outward); ``unconstrained`` where none is held."""
-    lo, hi = structure.bounds
+    over the parameters not held at a bound of ``bounds = (lower, upper)`` (within 1e-3 of
+    its range, the gradient pushing outward); ``unconstrained`` where none is held."""
+    lo, hi = bounds
     near = 1e-3 * np.where(np.isfinite(hi - lo), hi - lo, 1.0)
     free = ~(((theta - lo < near) & (g > 0)) | ((hi - theta < near) & (g < 0)))
     if free.all():
         return unconstrained
     if not free.any():
         return 0.0
-    return 0.5 * float(g[free] @ np.linalg.solve(M[np.ix_(free, free)], g[free]))
+    Mf, gf = M[np.ix_(free, free)], g[free]
+    try:
+        return 0.5 * float(gf @ np.linalg.solve(Mf, gf))
+    except np.linalg.LinAlgError:  # a direction without curvature (e.g. collinear nuisances)
+        return 0.5 * float(gf @ np.linalg.lstsq(Mf, gf, rcond=None)[0])
 
 
 def _group_of(groups: list[_Group], row: int, column: int) -> int:
