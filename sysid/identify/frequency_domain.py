@@ -98,7 +98,7 @@ from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters,
                                       ParameterStatistics, coloured_residual_covariance,
                                       on_parameters, parameter_rows, parameter_statistics,
-                                      perturbed_start, robust_scale)
+                                      perturbed_start, robust_scale, OUTLYING_SCALES)
 from sysid.models import LinearStructure
 from sysid.spectral.composite import trusted as composite_trusted
 from sysid.core.util import Deadline, Progress
@@ -1287,8 +1287,8 @@ def _model_dataset(final: _Converged, data: FitData, reduction, start_kind, rest
                      "from the coherence's random error (one standard deviation)"})
     ds["selection_outlying"] = ("parameter", on_parameters(ds.parameter.values, st.free_names,
                                                            outlying), {
-        "long_name": "fraction of the point re-selections whose estimate lies more than 3 "
-                     "selection bounds from their median", "units": "1"})
+        "long_name": f"fraction of the point re-selections whose estimate lies more than "
+                     f"{OUTLYING_SCALES:g} selection bounds from their median", "units": "1"})
     ds["cramer_rao_total"] = ("parameter", np.hypot(cr_n, cr_s), {
         "long_name": "random-error and point-selection bounds in quadrature (one standard "
                      "deviation; the bound the fidelity scoreboard judges on)"})

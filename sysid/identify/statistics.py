@@ -577,6 +577,5 @@ def robust_scale(samples, axis: int = 0) -> tuple[np.ndarray, np.ndarray]:
     x = np.asarray(samples, float)
     centre = np.median(x, axis=axis, keepdims=True)
     scale = MAD_TO_STD * np.median(np.abs(x - centre), axis=axis, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        outlying = np.where(scale > 0, np.abs(x - centre) > OUTLYING_SCALES * scale, False)
+    outlying = (scale > 0) & (np.abs(x - centre) > OUTLYING_SCALES * scale)
     return np.squeeze(scale, axis=axis), outlying.mean(axis=axis)

@@ -87,6 +87,7 @@ from sysid.core.units import CONTROLS
 from sysid.core.util import Progress, atomic_path
 from sysid.data.netcdf import read_campaign
 from sysid.flight_test.campaign import default_campaign
+from sysid.identify.statistics import OUTLYING_SCALES
 from sysid.models import parameter_values
 from sysid.pipeline.study import (FORWARD_FLIGHT_KT, METHODS, PARTS, QUICK_OMITS,
                                   TIME_DOMAIN_METHODS, StudySettings,
@@ -413,8 +414,9 @@ _BOUND_VARIABLES = {
     "cramer_rao_selection": {"long_name": "frequency-domain scatter over point re-selections"},
     "cramer_rao_total": {"long_name": "frequency-domain random-error and selection bounds in "
                                       "quadrature"},
-    "selection_outlying": {"long_name": "fraction of the point re-selections more than 3 "
-                                        "selection bounds from their median", "units": "1"},
+    "selection_outlying": {"long_name": f"fraction of the point re-selections more than "
+                                        f"{OUTLYING_SCALES:g} selection bounds from their "
+                                        f"median", "units": "1"},
 }
 
 
