@@ -98,11 +98,6 @@ FINITE_DIFFERENCES = False
 #: SOLVE_SETTLED of further decrease of L, as the output-error fit's (False: on the solver's
 #: own tolerances; docs/notes/2026-11-26-filter-error-settled-solves.md).
 SETTLED_SOLVES = True
-#: The biases and initial states are solved at every evaluation (variable projection, as the
-#: output-error fit does) rather than by the solver beside the model (False: jointly; the
-#: solver then creeps along bias/initial-state valleys of slow states;
-#: docs/notes/2026-11-26-filter-error-settled-solves.md).
-PROJECTED_NUISANCE = True
 #: Whitened residual returned for every sample of a trial model whose Riccati equation has
 #: no stabilising solution (the solver then rejects the step).
 _FAILED_RESIDUAL = 1e6
@@ -230,11 +225,6 @@ class _Predictor:
         self._state = (None, None)  #: (beta, predictor states) of the last evaluation
         self._comp = (None, None)  #: (beta, compressed problem) of the last evaluation
         self.settle = None  #: (lower, upper) of beta: a solve stops at SOLVE_SETTLED
-        #: The solver sees beta without the nuisance parameters, solved at each evaluation
-        #: (``_project``) and kept in ``nuisance``.
-        self.projected = False
-        self.n_nuisance = len(records) * self.n_rec
-        self.nuisance = np.zeros(self.n_nuisance)
         self._dmat = self._matrix_derivatives()
 
     def names(self, outputs) -> list[str]:
@@ -374,48 +364,17 @@ class _Predictor:
         beta = np.asarray(beta, float)
         if self._comp[0] is not None and np.array_equal(self._comp[0], beta):
             return self._comp[1]
-        full = np.concatenate([beta, self.nuisance]) if self.projected else beta
         try:
-            self._run(full)
+            self._run(beta)
         except (np.linalg.LinAlgError, ValueError):
             size = sum(len(rec.time) for rec in self.records) * self.p
-            f = np.zeros(beta.size + 1)
+            f = np.zeros(self.n_beta + 1)
             f[-1] = _FAILED_RESIDUAL * math.sqrt(size)  # the cost of the failed residuals
-            out = (f, np.zeros((beta.size + 1, beta.size)))
+            out = (f, np.zeros((self.n_beta + 1, self.n_beta)))
         else:
-            r, J = self.residuals(full), self.jacobian(full)
-            if self.projected:
-                r, J = self._project(r, J)
-            out = _compress(r, J)
+            out = _compress(self.residuals(beta), self.jacobian(beta))
         self._comp = (beta.copy(), out)
         return out
-
-    def _project(self, r, J):
-        """Variable projection of the nuisance parameters (Golub & Pereyra 1973; Kaufman's
-        Jacobian): the innovations are affine in each record's biases and initial state for a
-        given model and noise, so they are solved exactly at every evaluation, record by
-        record, and the solver sees ``(P r, P J_s)`` with ``P`` the projection off their
-        columns. ``self.nuisance`` takes the solution (the next evaluation's start)."""
-        ns, rows = self.n_beta - self.n_nuisance, 0
-        Js = J[:, :ns].copy()
-        r = r.copy()
-        for k, rec in enumerate(self.records):
-            block = slice(rows, rows + len(rec.time) * self.p)
-            cols = slice(ns + k * self.n_rec, ns + (k + 1) * self.n_rec)
-            G = J[block, cols]
-            d = np.linalg.norm(G, axis=0)
-            d = np.where(d > 0, d, 1.0)
-            lam, V = np.linalg.eigh((G.T @ G) / np.outer(d, d))
-            keep = lam > 1e-12 * lam[-1]
-            # pseudo-inverse of G through its scaled Gram matrix (exactly collinear columns,
-            # e.g. the heading's bias and initial state, share the step)
-            pinv = (V[:, keep] / lam[keep]) @ V[:, keep].T / np.outer(d, d) @ G.T
-            step = -pinv @ r[block]
-            r[block] += G @ step
-            Js[block] -= G @ (pinv @ Js[block])
-            self.nuisance[k * self.n_rec:(k + 1) * self.n_rec] += step
-            rows = block.stop
-        return r, Js
 
     # -- analytic sensitivities ----------------------------------------------------------------
 
@@ -736,29 +695,16 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
     cost_prev, passes = math.inf, 0
     fun, jac = ((pred.residuals, "2-point") if FINITE_DIFFERENCES else
                 (pred.compressed_residuals, pred.compressed_jacobian))
-    # the model and noise parameters go to the solver, the nuisance parameters are solved
-    # inside it (variable projection) unless finite differences are asked for
-    pred.projected = PROJECTED_NUISANCE and not FINITE_DIFFERENCES and pred.n_nuisance > 0
-    ns = pred.n_beta - (pred.n_nuisance if pred.projected else 0)
-    pred.settle = ((lower[:ns], upper[:ns]) if SETTLED_SOLVES and not FINITE_DIFFERENCES
-                   else None)
-    if method == "trf":
-        bounds = (lower[:ns], upper[:ns])
+    pred.settle = (lower, upper) if SETTLED_SOLVES and not FINITE_DIFFERENCES else None
     for passes in range(1, max_passes + 1):
         pred.whitener = np.linalg.inv(np.linalg.cholesky(Sigma))
         pred._comp = (None, None)  # whitened by the previous Sigma
-        pred.nuisance = beta[ns:].copy()
         try:
-            solved = scipy.optimize.least_squares(fun, beta[:ns], method=method, jac=jac,
-                                                  bounds=bounds, x_scale="jac", ftol=tol,
-                                                  xtol=tol, gtol=tol, max_nfev=max_nfev).x
+            beta = scipy.optimize.least_squares(fun, beta, method=method, jac=jac,
+                                                bounds=bounds, x_scale="jac", ftol=tol,
+                                                xtol=tol, gtol=tol, max_nfev=max_nfev).x
         except _Settled as settled:
-            solved = settled.theta
-        if pred.projected:  # the nuisance solved at the solver's last point
-            pred._comp = (None, None)
-            pred._compressed(solved)
-            solved = np.concatenate([solved, pred.nuisance])
-        beta = solved
+            beta = settled.theta
         E, Sigma, cost = innovations(beta, "at the end of a solve")
         if abs(cost_prev - cost) < cost_tol:
             break
