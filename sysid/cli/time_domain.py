@@ -117,10 +117,15 @@ def _fit_arguments(parser) -> None:
                         help="comma-separated fitted outputs (default: all measured)")
 
 
+def _outputs(args: argparse.Namespace) -> list[str] | None:
+    """``--outputs`` as a list (None: every measured output)."""
+    return [o.strip() for o in args.outputs.split(",") if o.strip()] if args.outputs else None
+
+
 def run_identify(args: argparse.Namespace) -> int:
     progress = Progress(quiet=args.quiet)
     data = CampaignData.read(args.campaign)
-    outputs = [o.strip() for o in args.outputs.split(",") if o.strip()] if args.outputs else None
+    outputs = _outputs(args)
     result = fit_time_domain(data, maneuvers=args.maneuvers, structure=args.structure,
                              start=args.start, outputs=outputs, biases=not args.no_biases,
                              initial_state=not args.no_initial_state,
@@ -136,7 +141,7 @@ def run_identify(args: argparse.Namespace) -> int:
 def run_identify_filter_error(args: argparse.Namespace) -> int:
     progress = Progress(quiet=args.quiet)
     data = CampaignData.read(args.campaign)
-    outputs = [o.strip() for o in args.outputs.split(",") if o.strip()] if args.outputs else None
+    outputs = _outputs(args)
     noise = args.process_noise.strip()
     if noise not in ("diagonal", "full"):
         noise = [s.strip() for s in noise.split(",") if s.strip()]

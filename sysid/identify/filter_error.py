@@ -83,8 +83,9 @@ from sysid.core.util import blas_threads
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters, ParameterStatistics,
                                       add_corrected_bounds, coloured_residual_covariance,
                                       parameter_rows, parameter_statistics)
+from sysid.identify.least_squares import Settled, predicted_decrease
 from sysid.identify.time_domain import (COST_SETTLED, SOLVE_SETTLED, OutputErrorModel,
-                                        _delayed, _predicted_decrease, _Settled, fit_inputs)
+                                        _delayed, fit_inputs)
 from sysid.models import LinearStructure, discretize, propagate
 
 __all__ = ["FilterErrorResult", "identify_filter_error", "WHITENESS_LAGS"]
@@ -349,15 +350,15 @@ class _Predictor:
     def compressed_jacobian(self, beta, *_) -> np.ndarray:
         """``[R_J; 0]`` (n_beta + 1, n_beta) of :meth:`compressed_residuals`. The solver asks
         for it at each accepted iterate; with ``self.settle = (lower, upper)`` it raises
-        ``_Settled`` there when the Gauss-Newton model predicts less than
+        ``Settled`` there when the Gauss-Newton model predicts less than
         :data:`~sysid.identify.time_domain.SOLVE_SETTLED` of further decrease of ``L`` (at
         fixed ``Sigma`` half the squared whitened innovations)."""
         f, Jf = self._compressed(beta)
         if self.settle is not None and np.all(np.isfinite(f)):
             RJ, q = Jf[:-1], f[:-1]
-            if _predicted_decrease(self.settle, np.asarray(beta, float), RJ.T @ q, RJ.T @ RJ,
+            if predicted_decrease(self.settle, np.asarray(beta, float), RJ.T @ q, RJ.T @ RJ,
                                    0.5 * float(q @ q)) < SOLVE_SETTLED:
-                raise _Settled(beta)
+                raise Settled(beta)
         return Jf
 
     def _compressed(self, beta):
@@ -703,7 +704,7 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
             beta = scipy.optimize.least_squares(fun, beta, method=method, jac=jac,
                                                 bounds=bounds, x_scale="jac", ftol=tol,
                                                 xtol=tol, gtol=tol, max_nfev=max_nfev).x
-        except _Settled as settled:
+        except Settled as settled:
             beta = settled.theta
         E, Sigma, cost = innovations(beta, "at the end of a solve")
         if abs(cost_prev - cost) < cost_tol:

@@ -10,6 +10,10 @@ Gauss-Newton model ``|f + J_f p| = |r + J p|``, so a trust-region solver takes t
 steps to rounding without factorising the tall Jacobian at every iteration. Both fits use it
 (docs/notes/2026-11-24-time-domain-speed.md measures the saving).
 
+A solve may also end from inside the solver's Jacobian callback, at an accepted iterate
+where the Gauss-Newton model ``1/2 g^T (J^T J)^-1 g`` predicts too little further decrease
+(:func:`predicted_decrease`, :class:`Settled`): the time-domain fits stop their solves so.
+
 References
 ----------
 * Golub, G. H. and Van Loan, C. F., *Matrix Computations*, 4th ed., Johns Hopkins, 2013,
@@ -23,7 +27,7 @@ import math
 import numpy as np
 import scipy.linalg
 
-__all__ = ["compress", "triangle"]
+__all__ = ["compress", "triangle", "SolveStopped", "Settled", "predicted_decrease"]
 
 
 def triangle(J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -60,3 +64,35 @@ def compress(r: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     RJ, qr = triangle(J, r)
     rest = math.sqrt(max(float(r @ r) - float(qr @ qr), 0.0))
     return np.append(qr, rest), np.vstack([RJ, np.zeros((1, n))])
+
+
+class SolveStopped(Exception):
+    """Ends a solve at ``theta`` from inside the solver's callbacks (raised through it)."""
+
+    def __init__(self, theta):
+        super().__init__(type(self).__name__)
+        self.theta = np.array(theta, float)
+
+
+class Settled(SolveStopped):
+    """A solve has converged at ``theta`` (an accepted iterate): its Gauss-Newton model
+    predicts less further decrease than the fit asks for (:func:`predicted_decrease`)."""
+
+
+def predicted_decrease(bounds: tuple[np.ndarray, np.ndarray], theta: np.ndarray,
+                       g: np.ndarray, M: np.ndarray, unconstrained: float) -> float:
+    """Decrease ``1/2 g^T M^-1 g`` of a Gauss-Newton model (gradient ``g``, matrix ``M``)
+    over the parameters not held at a bound of ``bounds = (lower, upper)`` (within 1e-3 of
+    its range, the gradient pushing outward); ``unconstrained`` where none is held."""
+    lo, hi = bounds
+    near = 1e-3 * np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+    free = ~(((theta - lo < near) & (g > 0)) | ((hi - theta < near) & (g < 0)))
+    if free.all():
+        return unconstrained
+    if not free.any():
+        return 0.0
+    Mf, gf = M[np.ix_(free, free)], g[free]
+    try:
+        return 0.5 * float(gf @ np.linalg.solve(Mf, gf))
+    except np.linalg.LinAlgError:  # a direction without curvature (e.g. collinear nuisances)
+        return 0.5 * float(gf @ np.linalg.lstsq(Mf, gf, rcond=None)[0])

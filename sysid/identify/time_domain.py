@@ -116,7 +116,8 @@ from sysid.core.guidelines import FIT_TIME_LIMIT_S
 from sysid.core.util import Deadline, Progress
 from sysid.data.campaign import record_trim
 from sysid.data.importers import validate_time_history
-from sysid.identify.least_squares import compress, triangle
+from sysid.identify.least_squares import (Settled, SolveStopped, compress, predicted_decrease,
+                                          triangle)
 from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
                                      conditional_start, stepwise_reduction)
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters,
@@ -694,16 +695,16 @@ class OutputErrorModel:
 
     def compressed_jacobian(self, theta):
         """``[R_J; 0]`` (:meth:`compressed_residuals`). The solver asks for it at each
-        accepted iterate; with ``self.settle`` it raises ``_Settled`` there when the
+        accepted iterate; with ``self.settle`` it raises ``Settled`` there when the
         Gauss-Newton model predicts less than :data:`SOLVE_SETTLED` of further decrease."""
         ev = self.evaluate(theta, jacobian=True)
         f, J = self._compressed(theta)
         if self.settle and np.all(np.isfinite(f)):
             RJ = J[:-1]
-            ev.decrease = _predicted_decrease(self.structure.bounds, ev.theta, RJ.T @ f[:-1],
+            ev.decrease = predicted_decrease(self.structure.bounds, ev.theta, RJ.T @ f[:-1],
                                               RJ.T @ RJ, 0.5 * float(f[:-1] @ f[:-1]))
             if ev.decrease < SOLVE_SETTLED:
-                raise _Settled(ev.theta)
+                raise Settled(ev.theta)
         return J
 
     def _compressed(self, theta):
@@ -736,7 +737,7 @@ class OutputErrorModel:
 
     def profile_jacobian(self, theta):
         """``[R_B; 0]`` (:meth:`profile_residuals`). The solver asks for it at each accepted
-        iterate, which becomes the secant update's reference; raises ``_Settled`` there when
+        iterate, which becomes the secant update's reference; raises ``Settled`` there when
         the Gauss-Newton model's predicted decrease (``_profile_model``) is below
         :data:`SOLVE_SETTLED`."""
         ev = self.evaluate(theta, jacobian=True)
@@ -747,7 +748,7 @@ class OutputErrorModel:
             self.secant = (ev.theta, ev.gradient, ev.secant if ev.secant is not None
                            else np.zeros_like(RJ))
         if ev.decrease < SOLVE_SETTLED:
-            raise _Settled(ev.theta)
+            raise Settled(ev.theta)
         return np.vstack([RJ, np.zeros((1, RJ.shape[1]))])
 
     def _profile_model(self, ev: _Evaluation) -> tuple[np.ndarray, np.ndarray]:
@@ -796,7 +797,7 @@ class OutputErrorModel:
 
         gauss_newton = factor(H) if down is not None else None
         gauss_newton = gauss_newton or (q, RJ)
-        ev.decrease = _predicted_decrease(
+        ev.decrease = predicted_decrease(
             self.structure.bounds, ev.theta, ev.gradient, gauss_newton[1].T @ gauss_newton[1],
             0.5 * float(gauss_newton[0] @ gauss_newton[0]))
         secant = factor(H + ev.secant) if ev.secant is not None else None
@@ -855,40 +856,9 @@ def _secant_update(state, theta: np.ndarray, gradient: np.ndarray,
     return S if np.all(np.isfinite(S)) else S_a
 
 
-class _Stop(Exception):
-    """Ends a profile solve at ``theta`` (raised through the solver)."""
-
-    def __init__(self, theta):
-        super().__init__(type(self).__name__)
-        self.theta = np.array(theta, float)
-
-
-class _Reanchor(_Stop):
+class _Reanchor(SolveStopped):
     """The profile likelihood fell below what the solver's cost offset allows (at ``theta``,
     the lowest point so far): restart the solve there with a new offset."""
-
-
-class _Settled(_Stop):
-    """A solve has converged at ``theta`` (an accepted iterate)."""
-
-
-def _predicted_decrease(bounds: tuple[np.ndarray, np.ndarray], theta: np.ndarray,
-                        g: np.ndarray, M: np.ndarray, unconstrained: float) -> float:
-    """Decrease ``1/2 g^T M^-1 g`` of a Gauss-Newton model (gradient ``g``, matrix ``M``)
-    over the parameters not held at a bound of ``bounds = (lower, upper)`` (within 1e-3 of
-    its range, the gradient pushing outward); ``unconstrained`` where none is held."""
-    lo, hi = bounds
-    near = 1e-3 * np.where(np.isfinite(hi - lo), hi - lo, 1.0)
-    free = ~(((theta - lo < near) & (g > 0)) | ((hi - theta < near) & (g < 0)))
-    if free.all():
-        return unconstrained
-    if not free.any():
-        return 0.0
-    Mf, gf = M[np.ix_(free, free)], g[free]
-    try:
-        return 0.5 * float(gf @ np.linalg.solve(Mf, gf))
-    except np.linalg.LinAlgError:  # a direction without curvature (e.g. collinear nuisances)
-        return 0.5 * float(gf @ np.linalg.lstsq(Mf, gf, rcond=None)[0])
 
 
 def _group_of(groups: list[_Group], row: int, column: int) -> int:
@@ -1053,7 +1023,7 @@ def _converge(structure: LinearStructure, records: list[TimeRecord], outputs, th
             model.settle = RELAXATION_SETTLES
             try:
                 theta = _solve(model, theta, tol=tol, max_nfev=limit, deadline=deadline).x
-            except _Settled as settled:
+            except Settled as settled:
                 theta = settled.theta
             finally:
                 model.settle = False
@@ -1119,7 +1089,7 @@ def _converge_profile(model: OutputErrorModel, theta: np.ndarray, *, R0: np.ndar
             break
         try:
             theta = _solve(model, theta, tol=tol, max_nfev=max_nfev, deadline=deadline).x
-        except _Settled as settled:
+        except Settled as settled:
             theta = settled.theta
         except _Reanchor as low:
             theta = low.theta
