@@ -69,9 +69,12 @@ The ``batch.nc`` Dataset (dims ``condition``, ``model`` (the identification meth
 from __future__ import annotations
 
 import dataclasses
+import heapq
+import itertools
 import json
 import math
 import time
+import threading
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -443,37 +446,49 @@ class BatchResult:
         return [r["name"] for r in self.records if r["status"] == "ok"]
 
 
+#: Dask settings of the batch's own LocalCluster (a scheduler given by address keeps its
+#: own). One BLAS thread per worker process: the workers already use every core. Without
+#: distributed's default ``MALLOC_TRIM_THRESHOLD_=65536``, which fixes glibc's trim and mmap
+#: thresholds so that every large numpy array is mapped and unmapped again (the 80-kt
+#: time-domain fit 9.8 s in a plain process, 15.9 s with it), and without the workers'
+#: statistical profiler, which samples the task's stack every 10 ms (a further ~10 %):
+#: docs/notes/2026-11-26-batch-worker-malloc-trim.md.
+WORKER_CONFIG = {
+    "distributed.nanny.pre-spawn-environ": {
+        "OPENBLAS_NUM_THREADS": 1, "OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1},
+    "distributed.worker.profile.enabled": False,
+}
+
+
 def _client(scheduler: str | None, n_workers: int, quiet: bool):
     import logging
+
+    import dask
 
     from distributed import Client, LocalCluster  # deferred: optional heavy dependency
 
     if scheduler:
         return Client(scheduler), None
-    # One BLAS thread per worker process: the workers already use every core.
-    env = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
-                           dashboard_address=":0", env=env,
-                           silence_logs=logging.ERROR if quiet else logging.WARNING)
+    with dask.config.set(WORKER_CONFIG):
+        cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                               dashboard_address=":0",
+                               silence_logs=logging.ERROR if quiet else logging.WARNING)
     return Client(cluster), cluster
 
 
-#: Dask priority of each part's task (higher first): the parts that start the longest chain
-#: of work go first (critical path first: the campaign, then the frequency-domain fit, the
-#: longer and more variable of the two fits, 3-13 s of CPU on a quick 80-kt condition
-#: against the time domain's 2-6 s), so the batch ends on short result parts on both workers
-#: rather than on one condition's fits and results on one worker
-#: (docs/notes/2026-11-26-batch-frequency-domain-first.md).
+#: Priority of each part (higher first) in the driver's queue of ready parts: the parts that
+#: start the longest chain of work go first (critical path first: the campaign, then the
+#: frequency-domain fit, the longer and more variable of the two fits, 3-13 s of CPU on a
+#: quick 80-kt condition against the time domain's 2-6 s), so the batch ends on short
+#: result parts on both workers rather than on one condition's fits and results on one
+#: worker (docs/notes/2026-11-26-batch-frequency-domain-first.md).
 PART_PRIORITY = {"data": 3, "frequency_domain": 2, "time_domain": 1, "results": 0}
 
 
 def _submit_part(client, condition: Condition, folder: Path, part: str, fail: str | None,
                  upstream: Sequence[dict]):
     """One part of one condition as a Dask task, the records of the parts it needs
-    (:data:`PART_NEEDS`) passed as values: the driver submits a part when they have
-    arrived, so every task is ready when submitted and the scheduler gives it to whichever
-    worker is free. (Submitted as a graph, a condition's fits and results were placed on the
-    worker that held its data record, and the other worker idled at the end of the batch.)"""
+    (:data:`PART_NEEDS`) passed as values, so the task is ready when submitted."""
     return client.submit(run_condition_part, condition.to_dict(), str(folder), part, fail,
                          *upstream, pure=False, priority=PART_PRIORITY[part],
                          key=f"sysid-{part}-{condition.name}-{time.time_ns()}")
@@ -528,54 +543,92 @@ def run_batch(conditions: Sequence[Condition], out_dir: str | Path, *,
             queue = as_completed()
             tasks: dict = {}  # future key -> (condition, part)
             parts: dict[str, dict] = {c.name: {} for c in todo}  # part -> record, or None
-            #                                                       while it runs
+            #                                                       while it waits or runs
+            # The driver holds the ready parts and submits one whenever a worker thread is
+            # free, highest PART_PRIORITY first (then condition order). Submitted at once,
+            # each task was placed on a worker when submitted, and a worker ran its own
+            # backlog (a time-domain fit) while a longer frequency-domain fit waited on
+            # the other. An external scheduler gets every ready part at once.
+            slots = n_workers if scheduler is None else math.inf
+            ready: list = []  # heap of (-priority, order, condition, part)
+            order = itertools.count()
 
-            def submit(c: Condition, part: str) -> None:
-                upstream = [parts[c.name][n] for n in PART_NEEDS[part]]
-                fut = _submit_part(client, c, out / c.name, part, inject_failure.get(c.name),
-                                   upstream)
+            def make_ready(c: Condition, part: str) -> None:
                 parts[c.name][part] = None
-                tasks[fut.key] = (c, part)
-                queue.add(fut)
+                heapq.heappush(ready, (-PART_PRIORITY[part], next(order), c, part))
+
+            def dispatch() -> None:
+                while ready and len(tasks) < slots:
+                    _, _, c, part = heapq.heappop(ready)
+                    if c.name in records:  # the condition ended (its worker died)
+                        continue
+                    upstream = [parts[c.name][n] for n in PART_NEEDS[part]]
+                    fut = _submit_part(client, c, out / c.name, part,
+                                       inject_failure.get(c.name), upstream)
+                    tasks[fut.key] = (c, part)
+                    queue.add(fut)
 
             for c in todo:
-                submit(c, PARTS[0])
+                make_ready(c, PARTS[0])
+            dispatch()
             done = 0
             for fut in queue:
                 c, part = tasks.pop(fut.key)
-                if c.name in records:  # the condition already ended (its worker died)
-                    continue
-                try:
-                    record = fut.result()
-                except Exception as exc:  # noqa: BLE001 - e.g. a worker died (KilledWorker)
-                    record = {"name": c.name, "condition": c.to_dict(), "status": "failed",
-                              "error_type": type(exc).__name__, "message": str(exc),
-                              "elapsed_s": float("nan"), "summary": None}
-                else:
-                    parts[c.name][part] = record
-                    if part != PARTS[-1]:
-                        for later in PARTS:
-                            if later not in parts[c.name] and all(
-                                    parts[c.name].get(n) is not None for n in PART_NEEDS[later]):
-                                submit(c, later)
+                try:  # a worker thread is free: the next ready part goes in `finally`
+                    if c.name in records:  # the condition already ended (its worker died)
                         continue
-                records[c.name] = record
-                del parts[c.name]
-                done += 1
-                if record["status"] == "ok":
-                    j = record["summary"]["J_ave"]
-                    costs = "  ".join(f"J_ave {m} {float(j.sel(model=m)):.1f}"
-                                      for m in j.model.values)
-                    progress.message(f"[batch] {done}/{len(todo)} {c.name}: ok in "
-                                     f"{record['elapsed_s']:.0f} s  {costs}")
-                else:
-                    progress.message(f"[batch] {done}/{len(todo)} {c.name}: FAILED "
-                                     f"{record['error_type']}: {record['message']}")
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+                    try:
+                        record = fut.result()
+                    except Exception as exc:  # noqa: BLE001 - e.g. a worker died (KilledWorker)
+                        record = {"name": c.name, "condition": c.to_dict(), "status": "failed",
+                                  "error_type": type(exc).__name__, "message": str(exc),
+                                  "elapsed_s": float("nan"), "summary": None}
+                    else:
+                        parts[c.name][part] = record
+                        if part != PARTS[-1]:
+                            for later in PARTS:
+                                if later not in parts[c.name] and all(
+                                        parts[c.name].get(n) is not None for n in PART_NEEDS[later]):
+                                    make_ready(c, later)
+                            continue
+                    records[c.name] = record
+                    del parts[c.name]
+                    done += 1
+                    if record["status"] == "ok":
+                        j = record["summary"]["J_ave"]
+                        costs = "  ".join(f"J_ave {m} {float(j.sel(model=m)):.1f}"
+                                          for m in j.model.values)
+                        progress.message(f"[batch] {done}/{len(todo)} {c.name}: ok in "
+                                         f"{record['elapsed_s']:.0f} s  {costs}")
+                    else:
+                        progress.message(f"[batch] {done}/{len(todo)} {c.name}: FAILED "
+                                         f"{record['error_type']}: {record['message']}")
+                finally:
+                    dispatch()
+        except BaseException:
+            _close(client, cluster)
+            raise
+        # The workers shut down (~0.5 s) while the driver combines and draws.
+        closing = threading.Thread(target=_close, args=(client, cluster),
+                                   name="sysid-batch-close")
+        closing.start()
+    try:
+        return _finish(conditions, records, out, scheduler, n_workers, start, progress)
+    finally:
+        if todo:
+            closing.join()
 
+
+def _close(client, cluster) -> None:
+    client.close()
+    if cluster is not None:
+        cluster.close()
+
+
+def _finish(conditions: Sequence[Condition], records: dict[str, dict], out: Path,
+            scheduler: str | None, n_workers: int, start: float,
+            progress: Progress) -> BatchResult:
+    """Combine the records, write batch.nc, the figures and the summaries (module doc)."""
     ordered = [records[c.name] for c in conditions]
     dataset = combine(conditions, ordered)
     calibrated = calibration(dataset)
@@ -699,7 +752,12 @@ def plot_derivatives(ds: xr.Dataset, path: str | Path) -> Path | None:
         t = truth.groupby(ok.airspeed_kt).mean() if truth.notnull().any() else None
         if t is not None:
             ax.plot(t.airspeed_kt.values, t.values, "k-", marker="_", ms=14, lw=1.2, label="truth")
-        ax.set_title(name + (f" ({off_scale} off scale)" if off_scale else ""), fontsize=9)
+        # A fixed title height and at most 5 ticks per axis: matplotlib otherwise measures
+        # every axis to place each title and builds ~8 ticks per axis (together 70 % of
+        # the figure's 1.8 s, serial work of the batch driver).
+        ax.set_title(name + (f" ({off_scale} off scale)" if off_scale else ""), fontsize=9,
+                     y=1.0)
+        ax.locator_params(nbins=4)
         ax.tick_params(labelsize=7)
         ax.axhline(0.0, color="0.8", lw=0.6, zorder=0)
     for ax in list(axes.flat)[len(params):]:
