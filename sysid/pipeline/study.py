@@ -60,6 +60,7 @@ from sysid.data.netcdf import group_attrs, read_campaign, update_campaign_groups
 from sysid.flight_test.campaign import Campaign, default_campaign, run_campaign
 from sysid.identify.stages import fit_filter_error, fit_frequency_domain, fit_time_domain
 from sysid.models import structure_path
+from sysid.report.html import write_report
 from sysid.spectral.cross_control import campaign_summary
 from sysid.spectral.response import (NO_TRANSIENT_GROUP, frequency_response,
                                      siso_frequency_response)
@@ -469,10 +470,6 @@ class _Study:
         self.save(self.stage("FMU export and validation", self.path, "validation",
                              _key("validate", self.key_models), validation))
         # 8. Report (always rewritten: cheap); it lists each stage's stamped time.
-        # Deferred: matplotlib and the report (0.34 s) are not imported by a batch worker
-        # that runs only a quick study's parts.
-        from sysid.report.html import write_report
-
         with self.progress.stage("report"):
             return write_report(self.campaign_data.tree, out, quiet=self.quiet)
 

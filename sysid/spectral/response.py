@@ -210,7 +210,7 @@ def frequency_response(records, inputs: Sequence[str], outputs: Sequence[str], *
         The correction is exact for a linear system whose states are all measured; with
         some missing it removes their part of the leakage only. Each regressor costs a
         degree of freedom of each window's averages, which the partial coherence and the
-        random error are charged for (:func:`charge_regressors`).
+        random error are charged for, as are the other inputs (:func:`charge_regressors`).
 
     Returns
     -------
@@ -276,7 +276,11 @@ def frequency_response(records, inputs: Sequence[str], outputs: Sequence[str], *
             # the transient regressors are conditioned on, not reported
             per_window = per_window.sel({d: inputs for d in controls if d in per_window.dims})
             if transient:
-                per_window = charge_regressors(per_window, len(transient), C_eps=C_eps)
+                # Every regressor beside the primary input costs a degree of freedom: the
+                # transient terms and the m - 1 other inputs (Bendat & Piersol: n_d - q for
+                # q conditioning inputs; docs/methods.md).
+                per_window = charge_regressors(per_window, len(transient) + len(inputs) - 1,
+                                               C_eps=C_eps)
         else:
             per_window = siso
     with prog.stage("frequency response: composite windowing"):
@@ -312,13 +316,14 @@ def frequency_response(records, inputs: Sequence[str], outputs: Sequence[str], *
 
 def charge_regressors(per_window: xr.Dataset, n_extra: int, *,
                       C_eps: float = _spectra.DEFAULT_C_EPS) -> xr.Dataset:
-    """Charge the conditioned pair spectra for ``n_extra`` extra regressors (the transient
-    terms): each costs a degree of freedom of the window's averages.
+    """Charge the conditioned pair spectra for ``n_extra`` regressors beside the primary
+    input (the other inputs and the transient terms): each costs a degree of freedom of the
+    window's averages.
 
-    Conditioning on ``n_extra`` more regressors than the paper's inputs fits away a share of
-    the output's residual that grows with ``n_extra / n_d`` even where they explain nothing,
-    so the residual spectrum, and with it the partial coherence, would look better than it
-    is (most in the longest window, with the fewest averages). As a least-squares residual
+    Conditioning on ``n_extra`` regressors fits away a share of the output's residual that
+    grows with ``n_extra / n_d`` even where they explain nothing, so the residual spectrum,
+    and with it the partial coherence, would look better than it is (most in the longest
+    window, with the fewest averages). As a least-squares residual
     variance is divided by its degrees of freedom, the residual part of ``Gyy_pair`` is scaled
     by ``n_d / (n_d - n_extra)`` (``n_d = T_r / T``):
 
