@@ -18,9 +18,9 @@ import pytest
 import xarray as xr
 
 from sysid.assess.comparison import DOMINANT
-from sysid.pipeline.batch import (Condition, calibration, combine, conditions, format_calibration,
-                                  load_conditions, monte_carlo, plot_calibration, run_batch,
-                                  structure_for, study_settings)
+from sysid.pipeline.batch import (Condition, _ReadyParts, calibration, combine, conditions,
+                                  format_calibration, load_conditions, monte_carlo,
+                                  plot_calibration, run_batch, structure_for, study_settings)
 from sysid.core.errors import InputDataError
 
 EXHAUSTIVE = os.environ.get("SYSID_EXHAUSTIVE") == "1"
@@ -38,6 +38,20 @@ def test_conditions_and_structures():
     assert StudySettings(airspeed_kt=29.9).fd_coherence == 0.6
     assert StudySettings(airspeed_kt=30.0).fd_coherence == 0.4
     assert StudySettings(airspeed_kt=80.0, fd_coherence_min=0.5).fd_coherence == 0.5
+
+
+def test_ready_parts_go_out_critical_path_first():
+    """The driver's queue of ready parts: data, then the frequency-domain fit, the
+    time-domain fit, the results (PART_PRIORITY), first come first served within one."""
+    a, b = Condition(0.0, seed=1, quick=True), Condition(0.0, seed=2, quick=True)
+    ready = _ReadyParts()
+    for c, part in ((a, "time_domain"), (a, "frequency_domain"), (b, "results"), (b, "data"),
+                    (a, "results"), (b, "time_domain")):
+        ready.add(c, part)
+    order = [(c.name, part) for c, part in (ready.pop() for _ in range(len(ready)))]
+    assert order == [(b.name, "data"), (a.name, "frequency_domain"), (a.name, "time_domain"),
+                     (b.name, "time_domain"), (b.name, "results"), (a.name, "results")]
+    assert not ready
 
 
 def test_speeds_file(tmp_path):

@@ -485,6 +485,25 @@ def _client(scheduler: str | None, n_workers: int, quiet: bool):
 PART_PRIORITY = {"data": 3, "frequency_domain": 2, "time_domain": 1, "results": 0}
 
 
+class _ReadyParts:
+    """Parts whose inputs have arrived, waiting for a free worker thread: :meth:`pop` gives
+    the highest :data:`PART_PRIORITY` first, then the one that became ready first."""
+
+    def __init__(self) -> None:
+        self._heap: list = []  # (-priority, order, condition, part)
+        self._order = itertools.count()
+
+    def add(self, condition: Condition, part: str) -> None:
+        heapq.heappush(self._heap, (-PART_PRIORITY[part], next(self._order), condition, part))
+
+    def pop(self) -> tuple[Condition, str]:
+        _, _, condition, part = heapq.heappop(self._heap)
+        return condition, part
+
+    def __len__(self) -> int:
+        return len(self._heap)
+
+
 def _submit_part(client, condition: Condition, folder: Path, part: str, fail: str | None,
                  upstream: Sequence[dict]):
     """One part of one condition as a Dask task, the records of the parts it needs
@@ -550,16 +569,15 @@ def run_batch(conditions: Sequence[Condition], out_dir: str | Path, *,
             # backlog (a time-domain fit) while a longer frequency-domain fit waited on
             # the other. An external scheduler gets every ready part at once.
             slots = n_workers if scheduler is None else math.inf
-            ready: list = []  # heap of (-priority, order, condition, part)
-            order = itertools.count()
+            ready = _ReadyParts()
 
             def make_ready(c: Condition, part: str) -> None:
                 parts[c.name][part] = None
-                heapq.heappush(ready, (-PART_PRIORITY[part], next(order), c, part))
+                ready.add(c, part)
 
             def dispatch() -> None:
                 while ready and len(tasks) < slots:
-                    _, _, c, part = heapq.heappop(ready)
+                    c, part = ready.pop()
                     if c.name in records:  # the condition ended (its worker died)
                         continue
                     upstream = [parts[c.name][n] for n in PART_NEEDS[part]]
@@ -584,11 +602,12 @@ def run_batch(conditions: Sequence[Condition], out_dir: str | Path, *,
                                   "error_type": type(exc).__name__, "message": str(exc),
                                   "elapsed_s": float("nan"), "summary": None}
                     else:
-                        parts[c.name][part] = record
+                        mine = parts[c.name]
+                        mine[part] = record
                         if part != PARTS[-1]:
                             for later in PARTS:
-                                if later not in parts[c.name] and all(
-                                        parts[c.name].get(n) is not None for n in PART_NEEDS[later]):
+                                if later not in mine and all(
+                                        mine.get(n) is not None for n in PART_NEEDS[later]):
                                     make_ready(c, later)
                             continue
                     records[c.name] = record
