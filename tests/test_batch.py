@@ -54,6 +54,34 @@ def test_ready_parts_go_out_critical_path_first():
     assert not ready
 
 
+def test_cli_time_domain_method_applies_to_every_condition(tmp_path, monkeypatch):
+    """``sysid batch --time-domain-method filter-error`` sets every condition's estimator,
+    over the speeds file's choice, and names the condition folders after it."""
+    import sysid.cli.batch as cli_batch
+    from sysid.cli import main
+
+    seen = {}
+
+    class Captured(Exception):
+        pass
+
+    def fake_run_batch(conditions, out, **kwargs):
+        seen["conditions"] = list(conditions)
+        raise Captured
+
+    monkeypatch.setattr(cli_batch, "run_batch", fake_run_batch)
+    speeds = tmp_path / "speeds.toml"
+    speeds.write_text('speeds = [0, 80]\nseeds = [1, 2]\ntime_domain_method = "output_error"\n')
+    with pytest.raises(Captured):
+        main(["batch", str(speeds), "--time-domain-method", "filter-error", "-o",
+              str(tmp_path / "out"), "-q"])
+    assert len(seen["conditions"]) == 4
+    assert {c.time_domain_method for c in seen["conditions"]} == {"filter_error"}
+    assert all(c.name.endswith("_filter_error") for c in seen["conditions"])
+    with pytest.raises(SystemExit):  # argparse refuses an unknown estimator
+        main(["batch", "--time-domain-method", "least-squares"])
+
+
 def test_speeds_file(tmp_path):
     path = tmp_path / "speeds.toml"
     path.write_text('speeds = [0, 60]\nseeds = [3]\nnoise = false\n'

@@ -6,6 +6,7 @@ import dataclasses
 
 from sysid.pipeline.batch import (default_conditions, format_calibration, format_summary,
                                   load_conditions, run_batch)
+from sysid.pipeline.study import TIME_DOMAIN_METHODS
 
 
 def register(subparsers) -> None:
@@ -22,7 +23,8 @@ def register(subparsers) -> None:
                     "what is on disk.")
     p.add_argument("speeds", nargs="?", default=None,
                    help="speeds TOML (speeds = [...], seeds = [...], noise, quick, "
-                        "[structures]); default: 0, 20, 40, 60, 80, 100 kt, one seed")
+                        "time_domain_method, [structures]); default: 0, 20, 40, 60, 80, "
+                        "100 kt, one seed")
     p.add_argument("-o", "--output", default="reports/batch", help="output folder")
     p.add_argument("--scheduler", default=None, metavar="tcp://host:port",
                    help="address of an existing Dask scheduler (default: a LocalCluster)")
@@ -31,6 +33,11 @@ def register(subparsers) -> None:
     p.add_argument("--quick", action="store_true",
                    help="reduced campaign and study per condition (fast check; noisier "
                         "results; no per-condition report, FMUs or validation)")
+    p.add_argument("--time-domain-method", default=None,
+                   choices=[m.replace("_", "-") for m in TIME_DOMAIN_METHODS],
+                   help="the time-domain estimator of every condition (default: the speeds "
+                        "file's, else output error); filter error's bounds are the ones "
+                        "calibrated on the hover seeds (README)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
@@ -42,6 +49,9 @@ def run(args) -> int:
         conditions = default_conditions()
     if args.quick:
         conditions = [dataclasses.replace(c, quick=True) for c in conditions]
+    if args.time_domain_method:
+        method = args.time_domain_method.replace("-", "_")
+        conditions = [dataclasses.replace(c, time_domain_method=method) for c in conditions]
     result = run_batch(conditions, args.output, scheduler=args.scheduler,
                        n_workers=args.workers, quiet=args.quiet)
     print(format_summary(result.dataset))
