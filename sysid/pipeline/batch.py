@@ -23,10 +23,11 @@ parts it needs have ended, longest chain first (:data:`PART_PRIORITY`)::
 Where it runs: a :class:`distributed.LocalCluster` of ``n_workers`` processes with one thread
 each by default; with ``scheduler="tcp://host:port"`` the tasks go to that existing Dask
 scheduler instead (its workers need ``sysid`` installed and must see ``out`` at the same path,
-e.g. a shared file system). No file lock is needed across machines: within a condition the
-data part writes ``campaign.nc`` before the fits start, each fit writes its own
-``model_<method>.nc``, and the results part alone merges them (:mod:`sysid.pipeline.study`);
-different conditions use different folders.
+e.g. a shared file system; their nannies should be configured as :data:`WORKER_CONFIG`, since
+distributed's default trim threshold slows every part 1.6x). No file lock is needed across
+machines: within a condition the data part writes ``campaign.nc`` before the fits start,
+each fit writes its own ``model_<method>.nc``, and the results part alone merges them
+(:mod:`sysid.pipeline.study`); different conditions use different folders.
 
 Fault tolerance: a task catches every exception of its condition (trim failure, diverging
 simulation, non-converging fit) and returns it as a failure record (the exception's type and
