@@ -19,11 +19,13 @@ References
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
 import xarray as xr
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 import sysid.report.plots as plots
 import sysid.report.read as read
@@ -48,8 +50,7 @@ def hq_chart_figure(points: Mapping[str, Mapping[str, tuple[float, float, float,
     ``points[axis][source] = (bandwidth, tau_p, bandwidth_std, tau_p_std)`` (rad/s, s);
     ``boundaries`` as :data:`~sysid.assess.handling_qualities.ADS33_BOUNDARIES`.
     """
-    fig = Figure(figsize=(11.0, 6.6), dpi=plots.DPI)
-    FigureCanvasAgg(fig)
+    fig = plots.new_figure(11.0, 6.6)
     axes_names = list(AXES)
     order = sorted({s for p in points.values() for s in p})
     handles: dict[str, object] = {}

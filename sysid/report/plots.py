@@ -21,14 +21,18 @@ from __future__ import annotations
 import io
 from collections.abc import Mapping, Sequence
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 from sysid.core.guidelines import COHERENCE_MIN
 
 __all__ = [
     "DPI",
+    "new_figure",
     "color_of",
     "png_bytes",
     "render_png",
@@ -76,7 +80,12 @@ def source_label(name: str) -> str:
             "truth": "truth (measured)"}.get(name, name.replace("_", " "))
 
 
-def _figure(width: float, height: float) -> Figure:
+def new_figure(width: float, height: float) -> Figure:
+    """A Figure (inches) on an Agg canvas. matplotlib is imported here, at the first figure:
+    a process that draws none (a batch worker of a quick study) does not pay its 0.3 s."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
     fig = Figure(figsize=(width, height), dpi=DPI)
     FigureCanvasAgg(fig)
     return fig
@@ -124,7 +133,7 @@ def aligned_phase(phase_deg: np.ndarray, reference_deg: np.ndarray | None = None
 def inputs_figure(time: np.ndarray, controls: Mapping[str, np.ndarray], title: str) -> Figure:
     """The four controls of one manoeuvre, one axis each (paper Figure 1)."""
     names = list(controls)
-    fig = _figure(7.5, 1.35 * len(names) + 0.6)
+    fig = new_figure(7.5, 1.35 * len(names) + 0.6)
     axes = fig.subplots(len(names), 1, sharex=True, squeeze=False)[:, 0]
     for ax, name in zip(axes, names):
         ax.plot(time, controls[name], color="tab:blue", linewidth=0.8)
@@ -149,7 +158,7 @@ def conditioning_figure(panels: Mapping[str, Mapping[str, np.ndarray]], omega: n
     ncol = 3 if n > 4 else 2 if n > 1 else 1
     nrow = -(-n // ncol)
     height = 2.4 * nrow + 0.6
-    fig = _figure(3.3 * ncol + 0.4, height)
+    fig = new_figure(3.3 * ncol + 0.4, height)
     axes = fig.subplots(nrow, ncol, squeeze=False).ravel()
     for ax, (pair, curves) in zip(axes, panels.items()):
         out, inp = pair.split("/")
@@ -201,7 +210,7 @@ def leakage_figure(panels: Mapping[str, Mapping[str, np.ndarray]], omega: np.nda
     """
     n = len(panels)
     height = 5.0
-    fig = _figure(3.0 * n + 0.5, height)
+    fig = new_figure(3.0 * n + 0.5, height)
     axes = fig.subplots(2, n, squeeze=False)
     styles = (("linearization", "truth linearisation", color_of("linearization")),
               ("plain", "without leakage conditioning", color_of("unconditioned")),
@@ -236,7 +245,7 @@ def leakage_figure(panels: Mapping[str, Mapping[str, np.ndarray]], omega: np.nda
 def cross_coherence_figure(omega: np.ndarray, curves: Mapping[str, np.ndarray],
                            threshold: float = 0.5) -> Figure:
     """Cross-control coherence (Eq. 8) of every pair of inputs, with the 0.5 guideline."""
-    fig = _figure(7.5, 3.2)
+    fig = new_figure(7.5, 3.2)
     ax = fig.add_subplot(1, 1, 1)
     for k, (name, values) in enumerate(curves.items()):
         ax.plot(omega, values, label=name, color=_PALETTE[k % len(_PALETTE)], linewidth=1.0)
@@ -266,7 +275,7 @@ def pair_figure(pair: str, omega: np.ndarray, data: np.ndarray,
     count for the envelope check.
     """
     order = list(models)
-    fig = _figure(7.5, 9.4)
+    fig = new_figure(7.5, 9.4)
     gs = fig.add_gridspec(5, 1, height_ratios=[1.2, 1.2, 0.7, 0.9, 0.9], hspace=0.12)
     ax_m, ax_p, ax_c, ax_em, ax_ep = (fig.add_subplot(gs[k]) for k in range(5))
     for ax in (ax_m, ax_p, ax_c, ax_em):
@@ -346,7 +355,7 @@ def time_response_figure(time: np.ndarray, inputs: Mapping[str, np.ndarray],
     sources the models). ``tic`` (``{source: {channel: TIC}}``) is written into the legend.
     """
     n = len(inputs) + len(channels)
-    fig = _figure(7.5, 1.45 * n + 0.7)
+    fig = new_figure(7.5, 1.45 * n + 0.7)
     axes = fig.subplots(n, 1, sharex=True, squeeze=False)[:, 0]
     k = 0
     for name, values in inputs.items():

@@ -15,11 +15,11 @@ References
 from __future__ import annotations
 
 import datetime as _dt
+import importlib.metadata
 import platform
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-import matplotlib
 import numpy as np
 import xarray as xr
 
@@ -798,7 +798,7 @@ def section_provenance(ctx: Context) -> str:
             ["flight condition", str(root.get("flight_condition", DASH))],
             ["campaign seed", str(root.get("seed", DASH))],
             ["python", platform.python_version()], ["numpy", np.__version__],
-            ["xarray", xr.__version__], ["matplotlib", matplotlib.__version__]]
+            ["xarray", xr.__version__], ["matplotlib", importlib.metadata.version("matplotlib")]]
     fmus = {}
     seeds = []
     for name, m in read.maneuvers(ctx.tree).items():
