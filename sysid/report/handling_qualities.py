@@ -24,9 +24,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 import xarray as xr
 
-if TYPE_CHECKING:
-    from matplotlib.figure import Figure
-
 import sysid.report.plots as plots
 import sysid.report.read as read
 from sysid.assess.handling_qualities import (ADS33_BOUNDARIES, ADS33_SOURCE, AXES, MTES,
@@ -36,6 +33,9 @@ from sysid.core.errors import InputDataError
 from sysid.data.campaign import CampaignData
 from sysid.report.figures import Context
 from sysid.report.page import esc, html_table, num
+
+if TYPE_CHECKING:  # matplotlib is imported at the first figure (plots.new_figure)
+    from matplotlib.figure import Figure
 
 __all__ = ["section_handling_qualities", "hq_chart_figure"]
 

@@ -20,15 +20,14 @@ from __future__ import annotations
 
 import io
 from collections.abc import Mapping, Sequence
-
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from matplotlib.figure import Figure
-
 from sysid.core.guidelines import COHERENCE_MIN
+
+if TYPE_CHECKING:  # matplotlib itself is imported at the first figure (new_figure)
+    from matplotlib.figure import Figure
 
 __all__ = [
     "DPI",
