@@ -28,6 +28,7 @@ Levenberg-Marquardt-type algorithm that, unlike MINPACK's ``"lm"``, honours boun
 keeps free delays in their physical range 0..0.3 s (docs/methods.md, "Delays"). ``"lm"`` is accepted when no
 parameter is bounded. The fit is restarted once from the solution perturbed by a seeded
 +-20 % to confirm the minimum; the better of the two is kept and both costs are reported.
+A solve also ends where its last accepted steps stopped gaining (:data:`STALL_DECREASE`).
 
 Accuracy (CIFER convention): ``H = G^T G`` with ``G`` the Jacobian of the weighted residuals
 above, i.e. ``H = sum_l (20/n) sum_omega W_gamma [W_g g_dB g_dB^T + W_p g_phase g_phase^T]``
@@ -90,7 +91,7 @@ import xarray as xr
 
 from sysid.core.errors import IdentificationError, InputDataError
 from sysid.core.guidelines import COHERENCE_MIN, FIT_TIME_LIMIT_S
-from sysid.identify.least_squares import compress
+from sysid.identify.least_squares import Stalled, compress, stall_watch
 from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
                                       STOPPED_ABOVE_CEILING, StoppedAboveCeiling,
                                       ceiling_watch, conditional_start,
@@ -156,6 +157,13 @@ RUNAWAY_CR_PERCENT = 100.0
 #: fixes the scale of their row while the ratios of the others to them stay identified.
 #: Other runaway parameters are left to the model reduction.
 DAMPING_DERIVATIVES = ("L_p", "M_q", "N_r", "Z_w", "Y_v", "X_u")
+#: A solve ends where its last STALL_WINDOW accepted steps together lowered J_ave by less than
+#: STALL_DECREASE (:func:`sysid.identify.least_squares.stall_watch`): 1/5000 of the model
+#: reduction's 2-J_ave acceptance threshold, like the time-domain fits' settle test.
+STALL_WINDOW = 10
+STALL_DECREASE = 4e-4
+#: ``status`` of a solve ended by the stall test (scipy uses -1 to 4, the reduction -2).
+STALLED = -3
 _DB = 20.0 / math.log(10.0)
 _DEG = 180.0 / math.pi
 
@@ -894,11 +902,15 @@ def _solve(problem: _Problem, theta0, *, method: str, tol: float, max_nfev: int 
     residuals = problem.compressed_residuals
     if deadline is not None:
         residuals = deadline.wrap(residuals)
-    jacobian = problem.compressed_jacobian
+    scale = 1.0 / len(problem.data.pairs)
+    jacobian = watched = stall_watch(problem.compressed_jacobian,
+                           lambda th: scale * float(np.sum(
+                               problem._compressed(np.asarray(th, float))[0] ** 2)),
+                           window=STALL_WINDOW, decrease=STALL_DECREASE)
     if ceiling is not None:  # a reduction trial: stop once J_ave cannot come under ceiling
+        budget = max_nfev if max_nfev is not None else 100 * len(theta0)  # scipy's trf cap
         jacobian = ceiling_watch(lambda th: (problem._compressed(np.asarray(th, float))[0],
-                                             problem.compressed_jacobian(th)),
-                                 ceiling, scale=1.0 / len(problem.data.pairs))
+                                             watched(th)), ceiling, scale=scale, budget=budget)
     return scipy.optimize.least_squares(residuals, theta0, jac=jacobian,
                                         bounds=(lo, hi), method=method, x_scale="jac",
                                         ftol=tol, xtol=tol, gtol=tol, max_nfev=max_nfev)
@@ -919,6 +931,10 @@ def _converge(structure: LinearStructure, data: FitData, theta0, *, method: str,
         except StoppedAboveCeiling as stop:
             theta, res_nfev, msg = stop.theta, prob.n_cost, str(stop)
             status = STOPPED_ABOVE_CEILING
+        except Stalled as stop:
+            theta, res_nfev, status = stop.theta, prob.n_cost, STALLED
+            msg = (f"stalled: {STALL_WINDOW} accepted steps lowered J_ave by less than "
+                   f"{STALL_DECREASE:g}")
     costs = prob.pair_costs(theta)
     stats = parameter_statistics(prob.jacobian(theta) if len(theta) else np.zeros((1, 0)),
                                  theta, structure.free_names)
@@ -990,7 +1006,8 @@ class FrequencyFitResult(FitResultParameters):
     start : str
         ``"model"``, ``"equation_error"`` or ``"structure"``.
     restart : dict
-        ``J_ave`` of the first convergence and of the restart from the perturbed solution.
+        ``J_ave`` of the first convergence and of the restart from the perturbed solution;
+        ``abandoned`` where the restart stopped once it could not come under the first.
     n_cost_evaluations, n_jacobian_evaluations : int
     elapsed : float
         Wall time, s.
@@ -1183,17 +1200,20 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
                 insensitivity_max=insensitivity_max, max_cost_increase=max_cost_increase,
                 protected=(*protected, *structure.kept_names), progress=progress)
         final = reduction.final.payload
-    # Restart from the perturbed solution to confirm the minimum.
+    # Restart from the perturbed solution to confirm the minimum; abandoned once it can no
+    # longer come under the first one (it could only confirm it then, not improve on it).
     theta_r = perturbed_start(final.theta, final.structure, seed, restart_fraction)
-    again = _converge(final.structure, data, theta_r, **kw)
+    again = _converge(final.structure, data, theta_r, ceiling=final.J_ave, **kw)
     restart = {"J_ave_first": final.J_ave, "J_ave_restart": again.J_ave,
-               "fraction": restart_fraction, "seed": seed}
+               "fraction": restart_fraction, "seed": seed,
+               "abandoned": again.status == STOPPED_ABOVE_CEILING}
     if again.J < final.J:
         final = again
     restart["same_minimum"] = bool(abs(restart["J_ave_first"] - restart["J_ave_restart"])
                                    <= 1e-3 * max(final.J_ave, 1e-6) + 1e-8)
     progress.message(f"[sysid]   restart: J_ave {restart['J_ave_first']:.4f} -> "
-                     f"{restart['J_ave_restart']:.4f}")
+                     f"{restart['J_ave_restart']:.4f}"
+                     + (" (abandoned above the first minimum)" if restart["abandoned"] else ""))
     pair_cost = {_pair_name(p): float(c) for p, c in zip(data.pairs, final.pair_cost)}
     pair_cost["J"] = final.J
     pair_cost["J_ave"] = final.J_ave

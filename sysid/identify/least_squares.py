@@ -13,6 +13,8 @@ steps to rounding without factorising the tall Jacobian at every iteration. Both
 A solve may also end from inside the solver's Jacobian callback, at an accepted iterate
 where the Gauss-Newton model ``1/2 g^T (J^T J)^-1 g`` predicts too little further decrease
 (:func:`predicted_decrease`, :class:`Settled`): the time-domain fits stop their solves so.
+Or where its last accepted steps together gained too little (:func:`stall_watch`,
+:class:`Stalled`): the frequency-domain fit stops a creep along an ill-conditioned valley so.
 
 References
 ----------
@@ -27,7 +29,8 @@ import math
 import numpy as np
 import scipy.linalg
 
-__all__ = ["compress", "triangle", "SolveStopped", "Settled", "predicted_decrease"]
+__all__ = ["compress", "triangle", "SolveStopped", "Settled", "Stalled", "predicted_decrease",
+           "stall_watch"]
 
 
 def triangle(J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -77,6 +80,46 @@ class SolveStopped(Exception):
 class Settled(SolveStopped):
     """A solve has converged at ``theta`` (an accepted iterate): its Gauss-Newton model
     predicts less further decrease than the fit asks for (:func:`predicted_decrease`)."""
+
+
+class Stalled(SolveStopped):
+    """A solve has stopped progressing at ``theta`` (an accepted iterate): its last accepted
+    steps together lowered the cost by less than the fit asks for (:func:`stall_watch`)."""
+
+
+def stall_watch(jacobian, cost, *, window: int, decrease: float):
+    """The Jacobian callable ``jacobian`` for :func:`scipy.optimize.least_squares`, raising
+    :class:`Stalled` at an accepted iterate whose ``cost(theta)`` is less than ``decrease``
+    below the cost ``window`` accepted iterates earlier.
+
+    The trust-region solver asks for the Jacobian at its start and after every accepted step,
+    so the test runs once per iterate. Why: along a long, ill-conditioned valley the solver
+    can creep for thousands of evaluations, each gaining a few millionths of the cost, before
+    its own relative tolerances end it; the Gauss-Newton model there predicts more than the
+    steps deliver, so :func:`predicted_decrease` does not see it.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> jac = stall_watch(lambda th: np.eye(1), lambda th: float(th[0]), window=2,
+    ...                   decrease=0.5)
+    >>> for c in (10.0, 5.0, 4.8):
+    ...     _ = jac(np.array([c]))
+    >>> try:
+    ...     jac(np.array([4.7]))
+    ... except Stalled as stop:
+    ...     print(stop.theta)
+    [4.7]
+    """
+    history: list[float] = []
+
+    def watched(theta):
+        c = float(cost(theta))
+        history.append(c)
+        if len(history) > window and history[-1 - window] - c < decrease:
+            raise Stalled(theta)
+        return jacobian(theta)
+    return watched
 
 
 def predicted_decrease(bounds: tuple[np.ndarray, np.ndarray], theta: np.ndarray,
