@@ -83,7 +83,8 @@ from sysid.core.util import blas_threads
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters, ParameterStatistics,
                                       add_corrected_bounds, coloured_residual_covariance,
                                       parameter_rows, parameter_statistics)
-from sysid.identify.least_squares import Settled, predicted_decrease
+from sysid.identify.least_squares import (STALL_WINDOW, Settled, SolveStopped,
+                                          predicted_decrease, stall_watch)
 from sysid.identify.time_domain import (COST_SETTLED, SOLVE_SETTLED, OutputErrorModel,
                                         _delayed, fit_inputs)
 from sysid.models import LinearStructure, discretize, propagate
@@ -99,6 +100,11 @@ FINITE_DIFFERENCES = False
 #: SOLVE_SETTLED of further decrease of L, as the output-error fit's (False: on the solver's
 #: own tolerances; docs/notes/2026-11-26-filter-error-settled-solves.md).
 SETTLED_SOLVES = True
+#: ... and where its last STALL_WINDOW accepted steps lowered L by less than SOLVE_SETTLED
+#: each on average (:func:`sysid.identify.least_squares.stall_watch`): at 80 kt a solve
+#: otherwise creeps for a hundred evaluations gaining about 0.15 in L
+#: (docs/notes/2026-11-27-filter-error-stall.md).
+STALL_SOLVES = True
 #: Whitened residual returned for every sample of a trial model whose Riccati equation has
 #: no stabilising solution (the solver then rejects the step).
 _FAILED_RESIDUAL = 1e6
@@ -700,12 +706,16 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
     for passes in range(1, max_passes + 1):
         pred.whitener = np.linalg.inv(np.linalg.cholesky(Sigma))
         pred._comp = (None, None)  # whitened by the previous Sigma
+        watched = jac
+        if pred.settle is not None and STALL_SOLVES:
+            watched = stall_watch(jac, lambda b: 0.5 * float(np.sum(fun(b) ** 2)),
+                                  decrease=STALL_WINDOW * SOLVE_SETTLED)
         try:
-            beta = scipy.optimize.least_squares(fun, beta, method=method, jac=jac,
+            beta = scipy.optimize.least_squares(fun, beta, method=method, jac=watched,
                                                 bounds=bounds, x_scale="jac", ftol=tol,
                                                 xtol=tol, gtol=tol, max_nfev=max_nfev).x
-        except Settled as settled:
-            beta = settled.theta
+        except SolveStopped as stopped:  # Settled or Stalled, at an accepted iterate
+            beta = stopped.theta
         E, Sigma, cost = innovations(beta, "at the end of a solve")
         if abs(cost_prev - cost) < cost_tol:
             break

@@ -91,7 +91,7 @@ import xarray as xr
 
 from sysid.core.errors import IdentificationError, InputDataError
 from sysid.core.guidelines import COHERENCE_MIN, FIT_TIME_LIMIT_S
-from sysid.identify.least_squares import Stalled, compress, stall_watch
+from sysid.identify.least_squares import STALL_WINDOW, Stalled, compress, stall_watch
 from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
                                       STOPPED_ABOVE_CEILING, StoppedAboveCeiling,
                                       ceiling_watch, conditional_start,
@@ -160,7 +160,6 @@ DAMPING_DERIVATIVES = ("L_p", "M_q", "N_r", "Z_w", "Y_v", "X_u")
 #: A solve ends where its last STALL_WINDOW accepted steps together lowered J_ave by less than
 #: STALL_DECREASE (:func:`sysid.identify.least_squares.stall_watch`): 1/5000 of the model
 #: reduction's 2-J_ave acceptance threshold, like the time-domain fits' settle test.
-STALL_WINDOW = 10
 STALL_DECREASE = 4e-4
 #: ``status`` of a solve ended by the stall test (scipy uses -1 to 4, the reduction -2).
 STALLED = -3
@@ -906,7 +905,7 @@ def _solve(problem: _Problem, theta0, *, method: str, tol: float, max_nfev: int 
     jacobian = watched = stall_watch(problem.compressed_jacobian,
                            lambda th: scale * float(np.sum(
                                problem._compressed(np.asarray(th, float))[0] ** 2)),
-                           window=STALL_WINDOW, decrease=STALL_DECREASE)
+                           decrease=STALL_DECREASE)
     if ceiling is not None:  # a reduction trial: stop once J_ave cannot come under ceiling
         budget = max_nfev if max_nfev is not None else 100 * len(theta0)  # scipy's trf cap
         jacobian = ceiling_watch(lambda th: (problem._compressed(np.asarray(th, float))[0],

@@ -30,7 +30,11 @@ import numpy as np
 import scipy.linalg
 
 __all__ = ["compress", "triangle", "SolveStopped", "Settled", "Stalled", "predicted_decrease",
-           "stall_watch"]
+           "stall_watch", "STALL_WINDOW"]
+
+#: Accepted steps over which a solve's progress is judged (:func:`stall_watch`;
+#: :func:`sysid.identify.reduction.pace_insufficient`).
+STALL_WINDOW = 10
 
 
 def triangle(J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -87,7 +91,7 @@ class Stalled(SolveStopped):
     steps together lowered the cost by less than the fit asks for (:func:`stall_watch`)."""
 
 
-def stall_watch(jacobian, cost, *, window: int, decrease: float):
+def stall_watch(jacobian, cost, *, decrease: float, window: int = STALL_WINDOW):
     """The Jacobian callable ``jacobian`` for :func:`scipy.optimize.least_squares`, raising
     :class:`Stalled` at an accepted iterate whose ``cost(theta)`` is less than ``decrease``
     below the cost ``window`` accepted iterates earlier.

@@ -39,6 +39,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from sysid.core.guidelines import REDUCTION_GUIDELINES as GUIDELINES
+from sysid.identify.least_squares import STALL_WINDOW
 from sysid.identify.statistics import ParameterStatistics, format_percent
 
 __all__ = ["FitOutcome", "ReductionStep", "ReductionResult", "stepwise_reduction",
@@ -52,8 +53,6 @@ __all__ = ["FitOutcome", "ReductionStep", "ReductionResult", "stepwise_reduction
 #: total later decrease exceeded the predicted one by at most 10.1x, in a trial hundreds of
 #: units above its ceiling (docs/notes/2026-11-25-reduction-early-refusal.md).
 REFUSAL_MARGIN = 10.0
-#: Accepted steps over which :func:`pace_insufficient` measures a trial refit's pace.
-PACE_WINDOW = 10
 
 
 @dataclass
@@ -179,7 +178,7 @@ class StoppedAboveCeiling(Exception):
 
 def ceiling_watch(compressed: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
                   ceiling: float, *, scale: float = 1.0, budget: int | None = None,
-                  window: int = PACE_WINDOW) -> Callable[[np.ndarray], np.ndarray]:
+                  window: int = STALL_WINDOW) -> Callable[[np.ndarray], np.ndarray]:
     """The Jacobian callable for :func:`scipy.optimize.least_squares` on a compressed problem
     (``compressed(theta) -> (f, J_f)``, :func:`sysid.identify.least_squares.compress`) that
     raises :class:`StoppedAboveCeiling` once :func:`refusal_certain` holds, or, with a
@@ -204,7 +203,7 @@ def ceiling_watch(compressed: Callable[[np.ndarray], tuple[np.ndarray, np.ndarra
 
 
 def pace_insufficient(costs: Sequence[float], ceiling: float, budget: int,
-                      window: int = PACE_WINDOW) -> bool:
+                      window: int = STALL_WINDOW) -> bool:
     """Whether a refit whose accepted iterates had ``costs`` cannot reach ``ceiling`` before
     its solver's evaluation ``budget`` runs out, at the pace of its last ``window`` steps.
 
