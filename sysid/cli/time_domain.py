@@ -18,12 +18,13 @@ structure's values.
 
     sysid identify-filter-error campaign.nc --maneuvers '3211_*' [--structure S.toml]
                         [--start ...] [--process-noise diagonal|full|u,v,w,r]
-                        [--outputs u,v,w,...] [--quiet]
+                        [--outputs u,v,w,...] [--no-reduction] [--quiet]
 
 fits the structure by the filter-error method (process and measurement noise; the steady
-Kalman predictor's innovations; :func:`sysid.identify.stages.fit_filter_error`, no model
-reduction), stores ``/models/filter_error`` and prints the table with the innovations'
-bounds, the bounds corrected for their colour, the noise and the innovations' whiteness.
+Kalman predictor's innovations; :func:`sysid.identify.stages.fit_filter_error`, with the
+output-error fit's model reduction), stores ``/models/filter_error`` and prints the table
+with the innovations' bounds, the bounds corrected for their colour, the noise and the
+innovations' whiteness.
 
 ::
 
@@ -74,12 +75,14 @@ def register(subparsers) -> None:
         description="Maximum-likelihood filter-error identification on one or more "
                     "manoeuvres (steady-state Kalman predictor, process noise Q = F F^T, "
                     "analytic sensitivities, Cramer-Rao bounds of the innovations and "
-                    "corrected for their colour). No model reduction.",
+                    "corrected for their colour), then the output-error fit's model "
+                    "reduction.",
     )
     _fit_arguments(f)
     f.add_argument("--process-noise", default=FILTER_ERROR_PROCESS_NOISE,
                    help="'diagonal' (default: one entry per state equation), 'full' (any "
                         "covariance) or comma-separated states carrying process noise")
+    f.add_argument("--no-reduction", action="store_true", help="skip the model reduction")
     f.add_argument("--quiet", action="store_true", help="no progress lines")
     f.set_defaults(func=run_identify_filter_error)
 
@@ -147,7 +150,7 @@ def run_identify_filter_error(args: argparse.Namespace) -> int:
         noise = [s.strip() for s in noise.split(",") if s.strip()]
     result = fit_filter_error(data, maneuvers=args.maneuvers, structure=args.structure,
                               start=args.start, outputs=outputs, process_noise=noise,
-                              progress=progress)
+                              reduce=not args.no_reduction, progress=progress)
     update_campaign(args.campaign, "models/filter_error", result.model)
     print(result.table())
     progress.message(f"[sysid] identify-filter-error: model written to {args.campaign} "

@@ -85,8 +85,10 @@ from sysid.identify.statistics import (ColouredBounds, FitResultParameters, Para
                                       parameter_rows, parameter_statistics)
 from sysid.identify.least_squares import (STALL_WINDOW, Settled, SolveStopped,
                                           predicted_decrease, stall_watch)
-from sysid.identify.time_domain import (COST_SETTLED, SOLVE_SETTLED, OutputErrorModel,
-                                        _delayed, fit_inputs)
+from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
+                                     conditional_start, stepwise_reduction)
+from sysid.identify.time_domain import (COST_SETTLED, MAX_COST_INCREASE, SOLVE_SETTLED,
+                                        OutputErrorModel, _delayed, fit_inputs)
 from sysid.models import LinearStructure, discretize, propagate
 
 __all__ = ["FilterErrorResult", "identify_filter_error", "WHITENESS_LAGS"]
@@ -153,7 +155,12 @@ class FilterErrorResult(FitResultParameters):
         Relaxation passes (LM solve, ``Sigma`` update).
     n_cost_evaluations : int
     cpu_time : float
-        CPU seconds of the fit (``time.process_time``).
+        CPU seconds of the fit (``time.process_time``), the reduction's refits included.
+    reduction : ReductionResult or None
+        The model reduction's steps (``reduce=True``).
+    noise_and_nuisance : ndarray
+        The solver's end values of the process-noise entries, measurement-noise stds and
+        per-record biases and initial states (the warm start of a reduction refit).
     """
 
     model: xr.Dataset
@@ -175,6 +182,8 @@ class FilterErrorResult(FitResultParameters):
     cpu_time: float
     full_statistics: ParameterStatistics | None = None
     coloured: ColouredBounds | None = None
+    reduction: ReductionResult | None = None
+    noise_and_nuisance: np.ndarray | None = None
 
     @property
     def J(self) -> float:
@@ -202,6 +211,8 @@ class FilterErrorResult(FitResultParameters):
                  ": not white, judge the parameters by CRc"),
                  f"cost (neg. log-likelihood) = {self.cost:.3f}, {self.passes} passes, "
                  f"{self.cpu_time:.1f} s CPU"]
+        if self.reduction is not None and self.reduction.steps:
+            lines += ["model reduction:", self.reduction.table()]
         return "\n".join(lines)
 
 
@@ -569,7 +580,12 @@ def identify_filter_error(records, structure: LinearStructure, *,
                           biases: bool = True, initial_state: bool = True,
                           tol: float = 1e-8, max_passes: int = 30,
                           cost_tol: float = COST_SETTLED,
-                          max_nfev: int | None = None) -> FilterErrorResult:
+                          max_nfev: int | None = None, reduce: bool = False,
+                          cr_max: float = GUIDELINES["cr_max"],
+                          insensitivity_max: float = GUIDELINES["insensitivity_max"],
+                          max_cost_increase: float = MAX_COST_INCREASE,
+                          protected: Sequence[str] = (),
+                          progress=None) -> FilterErrorResult:
     """Identify a structure from time histories flown in turbulence by the filter-error
     method (maximum likelihood with process and measurement noise; module docstring).
 
@@ -602,6 +618,14 @@ def identify_filter_error(records, structure: LinearStructure, *,
         fit's ``COST_SETTLED``, 0.01).
     max_nfev : int, optional
         Cost evaluations per solve (default scipy's).
+    reduce, cr_max, insensitivity_max, max_cost_increase, protected
+        Stepwise model reduction as the output-error fit's (the same guidelines and
+        likelihood-ratio threshold), judged on the innovations' bounds; each refit starts
+        at the conditional minimum of the last fit's quadratic model with the last fit's
+        process noise, measurement noise, biases and initial states (one likelihood
+        basin: from scratch a refit can land in another, tens of units of ``L`` away).
+    progress : Progress, optional
+        A line per reduction step.
 
     Returns
     -------
@@ -626,14 +650,39 @@ def identify_filter_error(records, structure: LinearStructure, *,
     >>> result.model["value"].sel(parameter="N_r"), result.statistics.cramer_rao
     >>> float(abs(result.whiteness).max()) <= 2 * result.whiteness.attrs["band"]
     """
+    kw = dict(outputs=outputs, process_noise=process_noise, biases=biases,
+              initial_state=initial_state, tol=tol, max_passes=max_passes, cost_tol=cost_tol,
+              max_nfev=max_nfev)
     with blas_threads():  # small matrices: one BLAS thread is faster and counts fair CPU
-        return _fit(records, structure, start=start, outputs=outputs,
-                    process_noise=process_noise, biases=biases, initial_state=initial_state,
-                    tol=tol, max_passes=max_passes, cost_tol=cost_tol, max_nfev=max_nfev)
+        cpu0 = time.process_time()
+        full = _fit(records, structure, start=start, **kw)
+        if not reduce:
+            return full
+
+        def refit(removed, previous, ceiling):
+            prev: FilterErrorResult = previous.payload
+            st = structure.fix(removed, 0.0)
+            theta0 = conditional_start(prev.statistics, removed[-1], st.free_names)
+            r = _fit(records, st, start=theta0, warm=prev.noise_and_nuisance, **kw)
+            return FitOutcome(r.cost, r.statistics, r)
+
+        reduction = stepwise_reduction(
+            refit, FitOutcome(full.cost, full.statistics, full), cr_max=cr_max,
+            insensitivity_max=insensitivity_max, max_cost_increase=max_cost_increase,
+            protected=(*protected, *structure.kept_names), progress=progress)
+    final: FilterErrorResult = reduction.final.payload
+    final.reduction = reduction
+    final.full_statistics = full.statistics
+    final.cpu_time = time.process_time() - cpu0
+    final.model.attrs.update({
+        "reduction": 1, "cpu_time_s": final.cpu_time,
+        "reduction_steps": json.dumps([step.as_dict() for step in reduction.steps]),
+        "removed_parameters": ",".join(reduction.removed)})
+    return final
 
 
 def _fit(records, structure, *, start, outputs, process_noise, biases, initial_state, tol,
-         max_passes, cost_tol, max_nfev) -> FilterErrorResult:
+         max_passes, cost_tol, max_nfev, warm: np.ndarray | None = None) -> FilterErrorResult:
     cpu0 = time.process_time()
     records, outs, recs = fit_inputs(records, structure, outputs,
                                      what="identify_filter_error")
@@ -672,6 +721,11 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
     F0[np.diag_indices(n)] = np.where(np.diag(F0) > 0, np.diag(F0),
                                       max(1e-3, float(np.max(np.diag(F0)))))
     beta = np.concatenate([theta0, F0[mask], r_start[1:], np.zeros(len(recs) * pred.n_rec)])
+    if warm is not None:  # a refit: the last fit's noise and nuisance values
+        if len(warm) != pred.n_beta - pred.n_theta:
+            raise InputDataError(f"identify_filter_error: warm start has {len(warm)} noise "
+                                 f"and nuisance values, expected {pred.n_beta - pred.n_theta}")
+        beta[pred.n_theta:] = warm
     lo, hi = structure.bounds
     lower = np.concatenate([lo, np.full(pred.n_beta - len(lo), -np.inf)])
     upper = np.concatenate([hi, np.full(pred.n_beta - len(hi), np.inf)])
@@ -797,7 +851,7 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
     return FilterErrorResult(model, structure, theta, stats, joint, gain_da, q_da, f_da, r_da,
                              sig_da, white_da, float(cost), tuple(r.name for r in recs), outs,
                              int(passes), int(pred.n_eval), float(cpu), full_statistics=stats,
-                             coloured=coloured)
+                             coloured=coloured, noise_and_nuisance=beta[nt:].copy())
 
 
 def _compress(r: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

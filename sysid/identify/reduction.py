@@ -19,10 +19,10 @@ Every step, accepted or undone, is recorded.
 
 Each trial refit is told the ceiling ``cost before + max_cost_increase`` above which its
 removal is undone. A fit may stop a trial early once its cost can no longer come under the
-ceiling (:func:`refusal_certain`) or cannot reach it at its pace before its
-evaluation budget runs out (:func:`pace_insufficient`); its outcome then says ``converged=False``, its cost is
-where it stopped (at or above what it would have converged to) and the decision is the
-one the converged trial gives. Accepted removals are always converged fully.
+ceiling (:func:`refusal_certain`) or cannot reach it at its pace before its evaluation
+budget runs out (:func:`pace_insufficient`); its outcome then says ``converged=False``, its
+cost is where it stopped (at or above what it would have converged to) and the decision is
+the one the converged trial gives. Accepted removals are always converged fully.
 
 References
 ----------
@@ -43,7 +43,8 @@ from sysid.identify.least_squares import STALL_WINDOW
 from sysid.identify.statistics import ParameterStatistics, format_percent
 
 __all__ = ["FitOutcome", "ReductionStep", "ReductionResult", "stepwise_reduction",
-           "refusal_certain", "pace_insufficient", "ceiling_watch", "StoppedAboveCeiling", "REFUSAL_MARGIN",
+           "refusal_certain", "pace_insufficient", "ceiling_watch", "StoppedAboveCeiling",
+           "REFUSAL_MARGIN",
            "STOPPED_ABOVE_CEILING", "GUIDELINES", "conditional_start"]
 
 #: Early refusal of a trial refit (:func:`refusal_certain`): the cost must lie above the

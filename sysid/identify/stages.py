@@ -175,12 +175,12 @@ FILTER_ERROR_PROCESS_NOISE = "diagonal"
 def fit_filter_error(data: CampaignData, *, maneuvers: str = "*",
                      structure: str = "hover_6dof", start: str = "auto",
                      outputs: Sequence[str] | None = None,
-                     process_noise=FILTER_ERROR_PROCESS_NOISE,
+                     process_noise=FILTER_ERROR_PROCESS_NOISE, reduce: bool = True,
                      progress: Progress | None = None) -> FilterErrorResult:
     """Filter-error identification (process and measurement noise) on the manoeuvres
     matching ``maneuvers``; structure, trim and ``start`` (:data:`TIME_DOMAIN_STARTS`) as
-    for :func:`fit_time_domain`, ``process_noise`` as for
-    :func:`sysid.identify.filter_error.identify_filter_error`. No model reduction. The
+    for :func:`fit_time_domain`, ``process_noise`` and ``reduce`` (the output-error fit's
+    model reduction) as for :func:`sysid.identify.filter_error.identify_filter_error`. The
     result's ``model`` records the campaign in attribute ``campaign_file``."""
     records = list(data.maneuvers(maneuvers).values())
     loaded = load_structure(structure, trim=data.trim(maneuvers))
@@ -191,7 +191,8 @@ def fit_filter_error(data: CampaignData, *, maneuvers: str = "*",
                          f"{len(loaded.free_index)} parameters, process noise "
                          f"{process_noise if isinstance(process_noise, str) else list(process_noise)}")
     result = identify_filter_error(records, loaded, start=begin, outputs=outputs,
-                                   process_noise=process_noise)
+                                   process_noise=process_noise, reduce=reduce,
+                                   progress=progress)
     result.model.attrs["campaign_file"] = data.source
     result.model.attrs["start_source"] = _start_source(data, begin, "time_domain")
     _record_responses(result.model, data)

@@ -124,8 +124,9 @@ class StudySettings:
     time_domain_maneuvers: str = "3211_*"
     #: The time-domain part's estimator (:data:`TIME_DOMAIN_METHODS`): ``"output_error"`` (the
     #: paper's) or ``"filter_error"`` (process noise for turbulence under feedback; diagonal
-    #: ``F``, no model reduction; docs/methods.md, "Filter error (process noise)"). Either
-    #: model is stored as ``/models/time_domain`` (its ``method`` attribute says which).
+    #: ``F``, model reduction as output error's; docs/methods.md, "Filter error (process
+    #: noise)"). Either model is stored as ``/models/time_domain`` (its ``method`` attribute
+    #: says which).
     time_domain_method: str = "output_error"
     verification_maneuvers: str = "2311_*"
     sweep_maneuvers: str = "sweep_*"
