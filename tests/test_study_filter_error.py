@@ -1,7 +1,7 @@
 """The study's time-domain part by filter error (``StudySettings.time_domain_method``,
 ``sysid run --time-domain-method filter-error``) on a reduced hover campaign flown on the
-truth FMU: the whole chain runs, the model stored as /models/time_domain is the filter-error
-model, and it is verified and scored like output error's."""
+truth FMU: the whole chain runs, the model stored as /models/time_domain is the reduced
+filter-error model, and it is verified and scored like output error's."""
 
 import pytest
 
@@ -22,6 +22,7 @@ def test_study_time_domain_part_by_filter_error(tmp_path):
     model = tree["models/time_domain"].to_dataset()
     assert model.attrs["method"] == "filter_error"
     assert "cramer_rao_corrected" in model and "innovation_covariance" in model
+    assert model.attrs["reduction"] == 1  # reduced as output error's model is
     for name, child in tree["verification"].children.items():
         j = float(child.to_dataset()["j_rms"].sel(source="time_domain"))
         assert j <= J_RMS_GUIDELINE, (name, j)
