@@ -617,7 +617,8 @@ def run_batch(conditions: Sequence[Condition], out_dir: str | Path, *,
                     if record["status"] == "ok":
                         j = record["summary"]["J_ave"]
                         costs = "  ".join(f"J_ave {m} {float(j.sel(model=m)):.1f}"
-                                          for m in j.model.values)
+                                          for m in j.model.values
+                                          if np.isfinite(j.sel(model=m)))  # not filter error's
                         progress.message(f"[batch] {done}/{len(todo)} {c.name}: ok in "
                                          f"{record['elapsed_s']:.0f} s  {costs}")
                     else:
