@@ -902,10 +902,13 @@ def _solve(problem: _Problem, theta0, *, method: str, tol: float, max_nfev: int 
     if deadline is not None:
         residuals = deadline.wrap(residuals)
     scale = 1.0 / len(problem.data.pairs)
-    jacobian = watched = stall_watch(problem.compressed_jacobian,
-                           lambda th: scale * float(np.sum(
-                               problem._compressed(np.asarray(th, float))[0] ** 2)),
-                           decrease=STALL_DECREASE)
+
+    def j_ave(th):
+        f = problem._compressed(np.asarray(th, float))[0]
+        return scale * float(f @ f)
+
+    jacobian = watched = stall_watch(problem.compressed_jacobian, j_ave,
+                                     decrease=STALL_DECREASE)
     if ceiling is not None:  # a reduction trial: stop once J_ave cannot come under ceiling
         budget = max_nfev if max_nfev is not None else 100 * len(theta0)  # scipy's trf cap
         jacobian = ceiling_watch(lambda th: (problem._compressed(np.asarray(th, float))[0],

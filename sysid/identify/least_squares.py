@@ -14,7 +14,8 @@ A solve may also end from inside the solver's Jacobian callback, at an accepted 
 where the Gauss-Newton model ``1/2 g^T (J^T J)^-1 g`` predicts too little further decrease
 (:func:`predicted_decrease`, :class:`Settled`): the time-domain fits stop their solves so.
 Or where its last accepted steps together gained too little (:func:`stall_watch`,
-:class:`Stalled`): the frequency-domain fit stops a creep along an ill-conditioned valley so.
+:class:`Stalled`): the frequency-domain and filter-error fits stop a creep along an
+ill-conditioned valley so.
 
 References
 ----------

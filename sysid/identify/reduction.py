@@ -44,8 +44,7 @@ from sysid.identify.statistics import ParameterStatistics, format_percent
 
 __all__ = ["FitOutcome", "ReductionStep", "ReductionResult", "stepwise_reduction",
            "refusal_certain", "pace_insufficient", "ceiling_watch", "StoppedAboveCeiling",
-           "REFUSAL_MARGIN",
-           "STOPPED_ABOVE_CEILING", "GUIDELINES", "conditional_start"]
+           "REFUSAL_MARGIN", "STOPPED_ABOVE_CEILING", "GUIDELINES", "conditional_start"]
 
 #: Early refusal of a trial refit (:func:`refusal_certain`): the cost must lie above the
 #: ceiling by more than this many times the whole decrease the fit's Gauss-Newton model still
