@@ -618,7 +618,7 @@ def run_batch(conditions: Sequence[Condition], out_dir: str | Path, *,
                         j = record["summary"]["J_ave"]
                         costs = "  ".join(f"J_ave {m} {float(j.sel(model=m)):.1f}"
                                           for m in j.model.values
-                                          if np.isfinite(j.sel(model=m)))  # not filter error's
+                                          if np.isfinite(j.sel(model=m)))  # frequency domain only
                         progress.message(f"[batch] {done}/{len(todo)} {c.name}: ok in "
                                          f"{record['elapsed_s']:.0f} s  {costs}")
                     else:
