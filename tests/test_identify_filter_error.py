@@ -17,6 +17,7 @@ for filter error and output error side by side. Default suite: 8 seeds; ``-m slo
 
 from __future__ import annotations
 
+import json
 import os
 
 import numpy as np
@@ -211,7 +212,8 @@ def test_analytic_sensitivities_match_central_differences():
     (``az = w_dot``, so C and D depend on the derivatives) with a D parameter, full process
     noise, a negative ``r``, biases and initial states, and a non-diagonal whitener.
     Measured: largest column error 2e-9 relative. The compressed problem handed to the
-    solver has the full problem's cost, gradient and Gauss-Newton matrix."""
+    solver (bias and initial state solved for) has the projected problem's cost, gradient
+    and Gauss-Newton matrix."""
     from sysid.identify import filter_error as fe
     from sysid.identify.time_domain import fit_inputs
     where = {"Z_w": ("A", "w", "w"), "Z_q": ("A", "w", "q"), "M_w": ("A", "q", "w"),
@@ -231,7 +233,7 @@ def test_analytic_sensitivities_match_central_differences():
     _, outs, prep = fit_inputs(recs, st, None, what="test")
     pred = fe._Predictor(st, prep, outs, fe._noise_mask("full", st.states), True, True)
     pred.r0 = 0.3
-    pred.whitener = np.array([[1.0, 0.0, 0.0], [0.3, 2.0, 0.0], [-0.2, 0.1, 0.5]])
+    pred.set_whitener(np.array([[1.0, 0.0, 0.0], [0.3, 2.0, 0.0], [-0.2, 0.1, 0.5]]))
     theta = st.theta0 * (1.0 + 0.2 * rng.standard_normal(st.theta0.size))
     theta[list(st.free_names).index("tau_q")] = 0.033
     beta = np.concatenate([theta, [1.5, 0.4, 0.7], [-0.6, 0.8],
@@ -244,12 +246,24 @@ def test_analytic_sensitivities_match_central_differences():
     err = np.linalg.norm(Ja - Jc, axis=0) / np.linalg.norm(Jc, axis=0)
     assert np.all(np.linalg.norm(Jc, axis=0) > 0)
     assert np.max(err) < 1e-5, dict(zip(pred.names(outs), err))
-    r = pred.residuals(beta)
-    f, Jf = fe._compress(r, Ja)
+    # the solver's problem: the nuisance solved for (variable projection), Kaufman's
+    # Jacobian, compressed; against the full Jacobian at the least-squares nuisance, its
+    # structure and noise columns projected off the nuisance columns
+    alpha = beta[:pred.n_alpha]
+    full = np.concatenate([alpha, pred._run(alpha)["nuisance"].ravel()])
+    r = pred.residuals(full)
+    np.testing.assert_allclose(pred.residuals(alpha), r, rtol=1e-12)
+    Jfull = pred.jacobian(full)
+    Ja, Jn = Jfull[:, :pred.n_alpha], Jfull[:, pred.n_alpha:]
+    np.testing.assert_allclose(Jn.T @ r, 0.0, atol=1e-9 * np.abs(Jn).sum(axis=0).max())
+    U, sv, _ = np.linalg.svd(Jn, full_matrices=False)
+    U = U[:, sv > 1e-9 * sv[0]]
+    Jp = Ja - U @ (U.T @ Ja)
+    f, Jf = pred.compressed_residuals(alpha), pred.compressed_jacobian(alpha)
     np.testing.assert_allclose(f @ f, r @ r, rtol=1e-12)
-    np.testing.assert_allclose(Jf.T @ f, Ja.T @ r, rtol=1e-8, atol=1e-8 * np.abs(Ja.T @ r).max())
-    np.testing.assert_allclose(Jf.T @ Jf, Ja.T @ Ja, rtol=1e-8,
-                               atol=1e-10 * np.abs(Ja.T @ Ja).max())
+    np.testing.assert_allclose(Jf.T @ f, Jp.T @ r, rtol=1e-8, atol=1e-8 * np.abs(Jp.T @ r).max())
+    np.testing.assert_allclose(Jf.T @ Jf, Jp.T @ Jp, rtol=1e-8,
+                               atol=1e-10 * np.abs(Jp.T @ Jp).max())
 
 
 def test_errors_name_what_is_wrong():
@@ -313,6 +327,18 @@ def test_cli_identify_filter_error_and_verify(tmp_path, capsys):
     assert main(["identify-filter-error", str(path), "--maneuvers", "3211_*", "--structure",
                  str(toml), "--process-noise", "w,r", "--quiet"]) == 1
     assert "unknown state(s) ['r']" in capsys.readouterr().err
+    # two noise starts: each screened, the lower one converged, both recorded
+    assert main(["identify-filter-error", str(path), "--maneuvers", "3211_*", "--structure",
+                 str(toml), "--start", "structure", "--process-noise", "full",
+                 "--noise-starts", "0.01:10,1:1", "--no-reduction", "--quiet"]) == 0
+    capsys.readouterr()
+    model = io.read_campaign(path)["models/filter_error"].to_dataset()
+    starts = json.loads(model.attrs["noise_starts"])
+    assert [s[:2] for s in starts] == [[0.01, 10.0], [1.0, 1.0]]
+    assert model.attrs["cost"] <= min(s[2] for s in starts) + 1e-6
+    assert main(["identify-filter-error", str(path), "--noise-starts", "0.01:-1",
+                 "--quiet"]) == 1
+    assert "--noise-starts: '0.01:-1' is not q:r" in capsys.readouterr().err
 
 
 def test_reduction_removes_the_coupling_the_truth_lacks():

@@ -18,7 +18,8 @@ structure's values.
 
     sysid identify-filter-error campaign.nc --maneuvers '3211_*' [--structure S.toml]
                         [--start ...] [--process-noise diagonal|full|u,v,w,r]
-                        [--outputs u,v,w,...] [--no-reduction] [--quiet]
+                        [--outputs u,v,w,...] [--noise-starts 0.01:10,1:10]
+                        [--no-reduction] [--quiet]
 
 fits the structure by the filter-error method (process and measurement noise; the steady
 Kalman predictor's innovations; :func:`sysid.identify.stages.fit_filter_error`, with the
@@ -41,11 +42,13 @@ TIC per output with PASS/FAIL against :data:`sysid.assess.metrics.J_RMS_GUIDELIN
 from __future__ import annotations
 
 import argparse
+import math
 
 from sysid.core.errors import InputDataError
 from sysid.core.util import Progress
 from sysid.data.campaign import CampaignData
 from sysid.data.netcdf import update_campaign, update_campaign_groups
+from sysid.identify.filter_error import NOISE_STARTS
 from sysid.identify.stages import (FILTER_ERROR_PROCESS_NOISE, TIME_DOMAIN_STARTS,
                                    fit_filter_error, fit_time_domain)
 from sysid.assess.stages import verify_models
@@ -73,7 +76,7 @@ def register(subparsers) -> None:
         help="identify a state-space model from time histories flown in turbulence "
              "(filter error: process and measurement noise)",
         description="Maximum-likelihood filter-error identification on one or more "
-                    "manoeuvres (steady-state Kalman predictor, process noise Q = F F^T, "
+                    "manoeuvres (steady-state Kalman predictor, process noise Q = U D U^T, "
                     "analytic sensitivities, Cramer-Rao bounds of the innovations and "
                     "corrected for their colour), then the output-error fit's model "
                     "reduction.",
@@ -82,6 +85,11 @@ def register(subparsers) -> None:
     f.add_argument("--process-noise", default=FILTER_ERROR_PROCESS_NOISE,
                    help="'diagonal' (default: one entry per state equation), 'full' (any "
                         "covariance) or comma-separated states carrying process noise")
+    f.add_argument("--noise-starts", default=None,
+                   help="noise starts of the first fit as q:r factors of the default Q and "
+                        "R start values, comma-separated; the lowest likelihood is kept "
+                        "(default: " + ",".join(f"{q:g}:{r:g}" for q, r in NOISE_STARTS)
+                        + ")")
     f.add_argument("--no-reduction", action="store_true", help="skip the model reduction")
     f.add_argument("--quiet", action="store_true", help="no progress lines")
     f.set_defaults(func=run_identify_filter_error)
@@ -141,7 +149,25 @@ def run_identify(args: argparse.Namespace) -> int:
     return 0
 
 
+def _noise_starts(text: str) -> tuple[tuple[float, float], ...]:
+    """``--noise-starts`` ``"q:r,q:r"`` as pairs of positive factors."""
+    starts = []
+    for item in (t.strip() for t in text.split(",") if t.strip()):
+        try:
+            q, r = (float(x) for x in item.split(":"))
+        except ValueError:
+            q = r = math.nan
+        if not (q > 0 and r > 0 and math.isfinite(q) and math.isfinite(r)):
+            raise InputDataError(f"--noise-starts: {item!r} is not q:r with two positive "
+                                 f"factors, e.g. 0.01:10")
+        starts.append((q, r))
+    if not starts:
+        raise InputDataError(f"--noise-starts {text!r}: give at least one q:r pair")
+    return tuple(starts)
+
+
 def run_identify_filter_error(args: argparse.Namespace) -> int:
+    starts = NOISE_STARTS if args.noise_starts is None else _noise_starts(args.noise_starts)
     progress = Progress(quiet=args.quiet)
     data = CampaignData.read(args.campaign)
     outputs = _outputs(args)
@@ -150,7 +176,8 @@ def run_identify_filter_error(args: argparse.Namespace) -> int:
         noise = [s.strip() for s in noise.split(",") if s.strip()]
     result = fit_filter_error(data, maneuvers=args.maneuvers, structure=args.structure,
                               start=args.start, outputs=outputs, process_noise=noise,
-                              reduce=not args.no_reduction, progress=progress)
+                              reduce=not args.no_reduction, noise_starts=starts,
+                              progress=progress)
     update_campaign(args.campaign, "models/filter_error", result.model)
     print(result.table())
     progress.message(f"[sysid] identify-filter-error: model written to {args.campaign} "

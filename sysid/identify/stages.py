@@ -34,7 +34,7 @@ from sysid.core.util import Progress
 from sysid.data.campaign import CampaignData
 from sysid.identify.frequency_domain import (N_POINTS, FrequencyFitResult,
                                              equation_error_start, identify_frequency_domain)
-from sysid.identify.filter_error import FilterErrorResult, identify_filter_error
+from sysid.identify.filter_error import NOISE_STARTS, FilterErrorResult, identify_filter_error
 from sysid.identify.time_domain import TimeFitResult, identify_time_domain
 from sysid.models import LinearStructure, load_structure
 from sysid.truth.linearize import truth_for_structure
@@ -176,11 +176,13 @@ def fit_filter_error(data: CampaignData, *, maneuvers: str = "*",
                      structure: str = "hover_6dof", start: str = "auto",
                      outputs: Sequence[str] | None = None,
                      process_noise=FILTER_ERROR_PROCESS_NOISE, reduce: bool = True,
+                     noise_starts: Sequence[tuple[float, float]] = NOISE_STARTS,
                      progress: Progress | None = None) -> FilterErrorResult:
     """Filter-error identification (process and measurement noise) on the manoeuvres
     matching ``maneuvers``; structure, trim and ``start`` (:data:`TIME_DOMAIN_STARTS`) as
-    for :func:`fit_time_domain`, ``process_noise`` and ``reduce`` (the output-error fit's
-    model reduction) as for :func:`sysid.identify.filter_error.identify_filter_error`. The
+    for :func:`fit_time_domain`, ``process_noise``, ``reduce`` (the output-error fit's
+    model reduction) and ``noise_starts`` as for
+    :func:`sysid.identify.filter_error.identify_filter_error`. The
     result's ``model`` records the campaign in attribute ``campaign_file``."""
     records = list(data.maneuvers(maneuvers).values())
     loaded = load_structure(structure, trim=data.trim(maneuvers))
@@ -192,7 +194,7 @@ def fit_filter_error(data: CampaignData, *, maneuvers: str = "*",
                          f"{process_noise if isinstance(process_noise, str) else list(process_noise)}")
     result = identify_filter_error(records, loaded, start=begin, outputs=outputs,
                                    process_noise=process_noise, reduce=reduce,
-                                   progress=progress)
+                                   noise_starts=noise_starts, progress=progress)
     result.model.attrs["campaign_file"] = data.source
     result.model.attrs["start_source"] = _start_source(data, begin, "time_domain")
     _record_responses(result.model, data)
