@@ -102,7 +102,13 @@ def test_speeds_file(tmp_path):
     cs = load_conditions(path)
     assert [c.name for c in cs] == ["0kt_seed1_filter_error", "0kt_seed2_filter_error"]
     assert study_settings(cs[0], tmp_path).time_domain_method == "filter_error"
-    assert Condition(0.0).time_domain_method == "output_error"
+    # the default: filter error (the calibrated bounds), output error for quick conditions
+    assert Condition(0.0).time_domain_method == "auto"
+    assert Condition(0.0).name == "0kt_seed20261121"
+    assert Condition(0.0).time_domain_estimator == "filter_error"
+    assert Condition(0.0, quick=True).time_domain_estimator == "output_error"
+    assert Condition(0.0, quick=True, time_domain_method="filter_error").time_domain_estimator \
+        == "filter_error"
     path.write_text('speeds = [0]\ntime_domain_method = "kalman"\n')
     with pytest.raises(InputDataError, match="time_domain_method 'kalman'; expected one of"):
         load_conditions(path)

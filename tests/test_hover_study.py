@@ -292,6 +292,22 @@ def test_frequency_domain_identification_from_the_truth_repeats_the_study(study)
 
 
 # -- Time-domain identification, verification, comparison (issue 6) ------------------------
+def test_time_domain_model_is_the_reduced_filter_error_model(study):
+    """The study's default time-domain estimator is filter error (its bounds are the
+    calibrated ones, issue 21): reduced as output error's, its four noise starts recorded,
+    process noise on every measured state, its bounds corrected for coloured innovations."""
+    import json
+
+    model = study["tree"]["models/time_domain"].to_dataset()
+    assert model.attrs["method"] == "filter_error"
+    assert model.attrs["reduction"] == 1 and model.attrs["removed_parameters"]
+    assert "cramer_rao_corrected" in model and "innovation_covariance" in model
+    starts = json.loads(model.attrs["noise_starts"])
+    assert len(starts) == 4 and all(len(s) == 3 for s in starts)
+    assert json.loads(model.attrs["process_noise_entries"]) == [[s, s] for s in (
+        "u", "v", "w", "p", "q", "r", "phi", "theta", "psi")]
+
+
 def test_both_models_predict_2311_responses_they_were_not_fitted_to(study):
     tree = study["tree"]
     primary = {"lon": "q", "lat": "p", "col": "w", "ped": "r"}

@@ -6,7 +6,7 @@ import dataclasses
 
 from sysid.pipeline.batch import (default_conditions, format_calibration, format_summary,
                                   load_conditions, run_batch)
-from sysid.pipeline.study import TIME_DOMAIN_METHODS
+from sysid.pipeline.study import TIME_DOMAIN_AUTO, TIME_DOMAIN_METHODS
 
 
 def register(subparsers) -> None:
@@ -34,10 +34,10 @@ def register(subparsers) -> None:
                    help="reduced campaign and study per condition (fast check; noisier "
                         "results; no per-condition report, FMUs or validation)")
     p.add_argument("--time-domain-method", default=None,
-                   choices=[m.replace("_", "-") for m in TIME_DOMAIN_METHODS],
+                   choices=[TIME_DOMAIN_AUTO, *(m.replace("_", "-") for m in TIME_DOMAIN_METHODS)],
                    help="the time-domain estimator of every condition (default: the speeds "
-                        "file's, else output error); filter error's bounds are the ones "
-                        "calibrated on the hover seeds (README)")
+                        "file's, else auto: filter error, whose bounds are calibrated, and "
+                        "output error for --quick conditions)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 

@@ -6,7 +6,8 @@ from pathlib import Path
 
 from sysid.core.errors import InputDataError
 from sysid.pipeline.flight_data import FLIGHT_DATA_STRUCTURE, run_flight_data
-from sysid.pipeline.study import TIME_DOMAIN_METHODS, StudySettings, run_study
+from sysid.pipeline.study import (TIME_DOMAIN_AUTO, TIME_DOMAIN_METHODS, StudySettings,
+                                  run_study)
 from sysid.cli._options import add_transient_options, transient_states
 from sysid.cli.io import _pairs, _resample, _trim
 
@@ -47,10 +48,11 @@ def register(subparsers) -> None:
     p.add_argument("--campaign", default=None, help="campaign TOML instead of the built-in")
     p.add_argument("--seed", type=int, default=20261121, help="campaign seed")
     p.add_argument("--no-noise", action="store_true", help="no sensor noise or turbulence")
-    p.add_argument("--time-domain-method", default="output-error",
-                   choices=[m.replace("_", "-") for m in TIME_DOMAIN_METHODS],
-                   help="the time-domain estimator: output error (default, the paper's) or "
-                        "filter error (process noise: turbulence under stabilising loops)")
+    p.add_argument("--time-domain-method", default=TIME_DOMAIN_AUTO,
+                   choices=[TIME_DOMAIN_AUTO, *(m.replace("_", "-") for m in TIME_DOMAIN_METHODS)],
+                   help="the time-domain estimator: filter error (process noise: turbulence "
+                        "under stabilising loops; its bounds are calibrated), output error "
+                        "(the paper's, faster) or auto (default: filter error)")
     add_transient_options(p)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
@@ -90,6 +92,8 @@ def _run_data(args) -> int:
                              units=_pairs(args.units, "--units") or None,
                              trim=_trim(args.trim) or None, time=args.time, resample=resample,
                              structure=args.structure or FLIGHT_DATA_STRUCTURE,
-                             transient_states=transient_states(args), quiet=args.quiet)
+                             transient_states=transient_states(args),
+                             time_domain_method=args.time_domain_method.replace("-", "_"),
+                             quiet=args.quiet)
     print(report.resolve())
     return 0

@@ -684,15 +684,19 @@ class _Predictor:
         return G, g, rr
 
 
-def _noise_mask(process_noise, states: Sequence[str]) -> np.ndarray:
+def _noise_mask(process_noise, states: Sequence[str],
+                outputs: Sequence[str] = ()) -> np.ndarray:
     n = len(states)
     if isinstance(process_noise, str):
         if process_noise == "full":
             return np.tril(np.ones((n, n), bool))
         if process_noise == "diagonal":
             return np.eye(n, dtype=bool)
-        raise InputDataError(f"process_noise must be 'full', 'diagonal', state names or a "
-                             f"boolean (state, state) mask of F, not {process_noise!r}")
+        if process_noise == "measured":
+            return np.diag([s in set(outputs) for s in states])
+        raise InputDataError(f"process_noise must be 'full', 'diagonal', 'measured', state "
+                             f"names or a boolean (state, state) mask of Q, not "
+                             f"{process_noise!r}")
     if len(process_noise) and all(isinstance(x, str) for x in process_noise):
         unknown = sorted(set(process_noise) - set(states))
         if unknown:
@@ -753,11 +757,10 @@ def identify_filter_error(records, structure: LinearStructure, *,
         structure's.
     outputs : sequence of str, optional
         Fitted outputs (default: every structure output present in all records).
-    process_noise : {"full", "diagonal"}, sequence of state names or bool array (state, state)
+    process_noise : {"full", "diagonal", "measured"}, state names or bool array (state, state)
         Estimated entries of ``Q = U D U^T`` (``D`` on the diagonal, ``U`` off it): lower
-        triangle (any ``Q``), diagonal
-        (independent noise per state equation), diagonal on the named states only, or a
-        mask.
+        triangle (any ``Q``), diagonal (independent noise per state equation), diagonal on
+        the states that are fitted outputs, diagonal on the named states only, or a mask.
     biases, initial_state : bool
         Estimate a bias per output and an initial predictor state per record.
     tol : float
@@ -895,7 +898,7 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
                                  f"{structure.name!r} has {structure.theta0.size} free "
                                  f"parameters {list(structure.free_names)}")
     n = len(structure.states)
-    mask = _noise_mask(process_noise, structure.states)
+    mask = _noise_mask(process_noise, structure.states, outs)
     pred = _Predictor(structure, recs, outs, mask, biases, initial_state)
     n_samples = sum(len(r.time) for r in recs)
     p = len(outs)

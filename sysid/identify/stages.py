@@ -165,11 +165,14 @@ def fit_frequency_domain(data: CampaignData, *, structure: str = "hover_6dof",
     return result
 
 
-#: Process noise of :func:`fit_filter_error` by default: one independent entry per state
-#: equation. On the truth helicopter's hover 3211s (20 seeds) it gave every dominant
-#: derivative's scatter within 0.67-2.01 of its corrected bound
-#: (docs/notes/2026-11-26-filter-error-truth-calibration.md).
-FILTER_ERROR_PROCESS_NOISE = "diagonal"
+#: Process noise of :func:`fit_filter_error` by default: one independent entry per equation
+#: of a measured state (all of them when u..psi are measured, as on the truth helicopter's
+#: hover 3211s, where every dominant derivative's scatter came within 0.77-1.89 of its
+#: corrected bound over 20 seeds). On flight data without u, v, w (accelerometers instead)
+#: noise on the unmeasured speeds absorbed the collective response: the reduction removed
+#: Z_col and the model missed 2311_col (J_rms 2.41; measured states only: 0.40-0.69 on the
+#: four 2311s; docs/notes/2026-11-27-filter-error-default.md).
+FILTER_ERROR_PROCESS_NOISE = "measured"
 
 
 def fit_filter_error(data: CampaignData, *, maneuvers: str = "*",

@@ -94,7 +94,7 @@ from sysid.flight_test.campaign import default_campaign
 from sysid.identify.statistics import OUTLYING_SCALES
 from sysid.models import parameter_values
 from sysid.pipeline.study import (FORWARD_FLIGHT_KT, METHODS, PARTS, QUICK_OMITS,
-                                  TIME_DOMAIN_METHODS, StudySettings,
+                                  TIME_DOMAIN_AUTO, TIME_DOMAIN_METHODS, StudySettings,
                                   run_study, structure_for)
 from sysid.truth import build_fmu
 
@@ -118,8 +118,9 @@ class Condition:
     noise: bool = True
     structure: str | None = None
     quick: bool = False
-    #: The study's time-domain estimator (:data:`~sysid.pipeline.study.TIME_DOMAIN_METHODS`).
-    time_domain_method: str = "output_error"
+    #: The study's time-domain estimator (:data:`~sysid.pipeline.study.TIME_DOMAIN_METHODS`,
+    #: or ``"auto"``: :attr:`~sysid.pipeline.study.StudySettings.time_domain_estimator`).
+    time_domain_method: str = TIME_DOMAIN_AUTO
 
     @property
     def name(self) -> str:
@@ -128,7 +129,7 @@ class Condition:
             text += "_nonoise"
         if self.quick:
             text += "_quick"
-        if self.time_domain_method != "output_error":
+        if self.time_domain_method != TIME_DOMAIN_AUTO:
             text += "_" + self.time_domain_method
         if self.structure:
             text += "_" + Path(str(self.structure)).stem
@@ -138,6 +139,12 @@ class Condition:
     def structure_name(self) -> str:
         return self.structure or structure_for(self.airspeed_kt)
 
+    @property
+    def time_domain_estimator(self) -> str:
+        """The estimator the study uses (resolves ``"auto"`` as the study does)."""
+        settings = StudySettings(quick=self.quick, time_domain_method=self.time_domain_method)
+        return settings.time_domain_estimator
+
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 
@@ -145,7 +152,7 @@ class Condition:
 def conditions(speeds: Iterable[float] = DEFAULT_SPEEDS, seeds: Iterable[int] = (20261121,),
                *, noise: bool = True, quick: bool = False,
                structures: dict[str, tuple[float, float]] | None = None,
-               time_domain_method: str = "output_error") -> list[Condition]:
+               time_domain_method: str = TIME_DOMAIN_AUTO) -> list[Condition]:
     """Every (speed, seed) combination as a :class:`Condition`.
 
     ``structures`` maps a structure (built-in name or TOML path) to an airspeed band
@@ -171,7 +178,8 @@ def load_conditions(path: str | Path) -> list[Condition]:
         seeds = [20261121, 1, 2]            # one condition per speed and seed (default one)
         noise = true                        # sensor noise and turbulence (default true)
         quick = false                       # reduced campaign and study (default false)
-        time_domain_method = "output_error" # or "filter_error" (default output_error)
+        time_domain_method = "auto"         # "filter_error", "output_error" or "auto" (the
+                                            # default: filter error, output error if quick)
 
         [structures]                        # optional: structure -> airspeed band [from, to) kt
         hover_6dof = [0, 30]
@@ -201,10 +209,10 @@ def load_conditions(path: str | Path) -> list[Condition]:
     except (TypeError, ValueError, IndexError) as exc:
         raise InputDataError(f"speeds file {path}: speeds must be numbers (kt), seeds "
                              f"integers and structures name = [from, to] in kt ({exc})") from None
-    method = str(spec.get("time_domain_method", "output_error"))
-    if method not in TIME_DOMAIN_METHODS:
+    method = str(spec.get("time_domain_method", TIME_DOMAIN_AUTO))
+    if method not in (*TIME_DOMAIN_METHODS, TIME_DOMAIN_AUTO):
         raise InputDataError(f"speeds file {path}: time_domain_method {method!r}; expected "
-                             f"one of {TIME_DOMAIN_METHODS}")
+                             f"one of {(*TIME_DOMAIN_METHODS, TIME_DOMAIN_AUTO)}")
     out = conditions(speeds, seeds, noise=bool(spec.get("noise", True)),
                      quick=bool(spec.get("quick", False)), structures=bands,
                      time_domain_method=method)
@@ -699,7 +707,7 @@ def combine(conditions: Sequence[Condition], records: Sequence[dict]) -> xr.Data
         noise=("condition", np.array([int(c.noise) for c in conditions], dtype="int8")),
         quick=("condition", np.array([int(c.quick) for c in conditions], dtype="int8")),
         structure=("condition", [c.structure_name for c in conditions]),
-        time_domain_method=("condition", [c.time_domain_method for c in conditions]),
+        time_domain_method=("condition", [c.time_domain_estimator for c in conditions]),
         status=("condition", [by_name[n]["status"] for n in names]),
         error=("condition", [(f"{by_name[n]['error_type']}: {by_name[n]['message']}"
                               if by_name[n]["status"] != "ok" else "") for n in names]),

@@ -48,7 +48,8 @@ from sysid.identify.frequency_domain import DEFAULT_PAIRS
 from sysid.models import structure_path
 from sysid.models.toml import ACCELEROMETER_ROWS, structure_from_dict
 from sysid.data.netcdf import read_campaign
-from sysid.pipeline.study import PARTS, StudySettings, _group_key, _key, _Study
+from sysid.pipeline.study import (PARTS, TIME_DOMAIN_AUTO, StudySettings, _group_key, _key,
+                                  _Study)
 
 __all__ = ["FLIGHT_DATA_STRUCTURE", "read_flight_data", "measured_outputs", "measured_pairs",
            "measured_structure", "structure_toml", "run_flight_data"]
@@ -214,7 +215,8 @@ class _FlightData(_Study):
     with_truth = False
 
     def __init__(self, out_dir: str | Path, records: dict[str, xr.Dataset], structure: str,
-                 *, quiet: bool, log: TextIO | None, source: str, transient_states: str):
+                 *, quiet: bool, log: TextIO | None, source: str, transient_states: str,
+                 time_domain_method: str):
         names = list(records)
         sweeps = [n for n in names if n.startswith("sweep")]
         if not sweeps:
@@ -231,6 +233,7 @@ class _FlightData(_Study):
         self.fd_pairs = measured_pairs(self.outputs)
         settings = StudySettings(
             structure=structure, transient_states=transient_states,
+            time_domain_method=time_domain_method,
             time_domain_maneuvers="3211_*" if any(n.startswith("3211_") for n in names)
             else "*",
             verification_maneuvers="2311_*" if any(n.startswith("2311_") for n in names)
@@ -254,8 +257,10 @@ class _FlightData(_Study):
                            settings.transient_states, self.outputs)
         self.key_fd = _key("fd", self.key_fr, text, settings.fd_coherence, self.fd_pairs)
         # started from the frequency-domain model, the time-domain fit depends on it
+        estimator = settings.time_domain_estimator
         self.key_td = _key("td", self.key_campaign, self.key_fd, text,
-                           settings.time_domain_maneuvers, self.td_start)
+                           settings.time_domain_maneuvers, self.td_start,
+                           *(() if estimator == "output_error" else (estimator,)))
         self.key_models = _key(self.key_fd, self.key_td)
         self.fit_keys = {"frequency_domain": self.key_fd, "time_domain": self.key_td}
 
@@ -286,7 +291,8 @@ def run_flight_data(files: Sequence[str | Path], out_dir: str | Path, *,
                     trim: Mapping[str, float] | None = None, time: str = "time",
                     resample: float | str | None = None,
                     structure: str | Path = FLIGHT_DATA_STRUCTURE,
-                    transient_states: str = "auto", quiet: bool = False,
+                    transient_states: str = "auto",
+                    time_domain_method: str = TIME_DOMAIN_AUTO, quiet: bool = False,
                     log: TextIO | None = None) -> Path:
     """Identify a helicopter from flight-test files; return the report's path.
 
@@ -295,8 +301,8 @@ def run_flight_data(files: Sequence[str | Path], out_dir: str | Path, *,
     run_study` writes (``campaign.nc``, ``frequency_domain.fmu``, ``time_domain.fmu``,
     ``comparison.csv``, ``report.html``, ``figures/``) and ``structure.toml``, the
     ``structure`` with the measured outputs (:func:`measured_structure`);
-    ``transient_states`` is the leakage conditioning of
-    :attr:`sysid.pipeline.study.StudySettings.transient_states`. A re-run reuses
+    ``transient_states`` and ``time_domain_method`` are the leakage conditioning and the
+    time-domain estimator of :class:`sysid.pipeline.study.StudySettings`. A re-run reuses
     every stage whose inputs did not change. Progress goes to standard error (or ``log``)
     unless ``quiet``; the stages' tables to standard output (or ``log``).
 
@@ -310,7 +316,8 @@ def run_flight_data(files: Sequence[str | Path], out_dir: str | Path, *,
     source = ", ".join(str(f) for f in files)
     with blas_threads():
         study = _FlightData(out_dir, records, str(structure), quiet=quiet, log=log,
-                            source=source, transient_states=transient_states)
+                            source=source, transient_states=transient_states,
+                            time_domain_method=time_domain_method)
         report = None
         for part in PARTS:
             report = getattr(study, part)()

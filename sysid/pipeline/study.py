@@ -73,7 +73,8 @@ from sysid.assess.verification import verification_table
 from sysid.truth import build_fmu
 
 __all__ = ["FORWARD_FLIGHT_KT", "FD_COHERENCE_MIN_HOVER", "FD_COHERENCE_MIN_FORWARD",
-           "StudySettings", "PARTS", "METHODS", "TIME_DOMAIN_METHODS", "QUICK_OMITS", "run_study", "study_tree",
+           "StudySettings", "PARTS", "METHODS", "TIME_DOMAIN_METHODS", "TIME_DOMAIN_AUTO",
+           "QUICK_OMITS", "run_study", "study_tree",
            "structure_for"]
 
 #: From this airspeed (kt) up the forward-flight structure and coherence admission are used.
@@ -102,6 +103,8 @@ QUICK_OMITS = (
 
 #: Estimators of the study's time-domain part (:attr:`StudySettings.time_domain_method`).
 TIME_DOMAIN_METHODS = ("output_error", "filter_error")
+#: ... and the default, which picks one of them (:attr:`StudySettings.time_domain_estimator`).
+TIME_DOMAIN_AUTO = "auto"
 
 
 def structure_for(airspeed_kt: float) -> str:
@@ -122,12 +125,14 @@ class StudySettings:
     #: :data:`FD_COHERENCE_MIN_FORWARD` in forward flight (see there).
     fd_coherence_min: float | None = None
     time_domain_maneuvers: str = "3211_*"
-    #: The time-domain part's estimator (:data:`TIME_DOMAIN_METHODS`): ``"output_error"`` (the
-    #: paper's) or ``"filter_error"`` (process noise for turbulence under feedback; diagonal
-    #: ``F``, model reduction as output error's; docs/methods.md, "Filter error (process
-    #: noise)"). Either model is stored as ``/models/time_domain`` (its ``method`` attribute
-    #: says which).
-    time_domain_method: str = "output_error"
+    #: The time-domain part's estimator (:data:`TIME_DOMAIN_METHODS`): ``"filter_error"``
+    #: (process noise for turbulence under feedback, diagonal ``Q``; its bounds are the
+    #: calibrated ones; docs/methods.md, "Filter error (process noise)"), ``"output_error"``
+    #: (the paper's, about five times faster, its bounds too small under turbulence), or
+    #: ``"auto"``: filter error, output error for a ``quick`` study (fast checks over many
+    #: conditions). Either model is stored as ``/models/time_domain`` (its ``method``
+    #: attribute says which).
+    time_domain_method: str = TIME_DOMAIN_AUTO
     verification_maneuvers: str = "2311_*"
     sweep_maneuvers: str = "sweep_*"
     campaign_file: str | None = None  #: a campaign TOML instead of the built-in one
@@ -139,6 +144,18 @@ class StudySettings:
     transient_states: str = "auto"
     #: A reduced study for batches of many conditions: leaves out :data:`QUICK_OMITS`.
     quick: bool = False
+
+    @property
+    def time_domain_estimator(self) -> str:
+        """The time-domain part's estimator (resolves ``"auto"``); raises
+        :class:`SysidError` naming the accepted values for anything else."""
+        method = self.time_domain_method
+        if method == TIME_DOMAIN_AUTO:
+            return "output_error" if self.quick else "filter_error"
+        if method not in TIME_DOMAIN_METHODS:
+            raise SysidError(f"time_domain_method {method!r}: expected one of "
+                             f"{TIME_DOMAIN_METHODS} or {TIME_DOMAIN_AUTO!r}")
+        return method
 
     @property
     def fd_coherence(self) -> float:
@@ -242,10 +259,10 @@ class _Study:
         self.key_fd = _key("fd", self.key_fr, structure, settings.fd_coherence)
         # The time-domain fit starts from the linearisation, not from the frequency-domain
         # result, so that the two identifications are independent.
-        # (the estimator enters only when it is not the default, so that output-error
+        # (the estimator enters only when it is not output error, so that output-error
         # studies keep their cache keys)
-        method = (() if settings.time_domain_method == "output_error"
-                  else (settings.time_domain_method,))
+        estimator = settings.time_domain_estimator
+        method = () if estimator == "output_error" else (estimator,)
         self.key_td = _key("td", self.key_campaign, structure, settings.time_domain_maneuvers,
                            *method)
         self.key_models = _key(self.key_fd, self.key_td)
@@ -395,10 +412,7 @@ class _Study:
     def time_domain(self) -> None:
         settings = self.settings
         self.needs_data("maneuvers", self.key_campaign)
-        if settings.time_domain_method not in TIME_DOMAIN_METHODS:
-            raise SysidError(f"time_domain_method {settings.time_domain_method!r}: expected "
-                             f"one of {TIME_DOMAIN_METHODS}")
-        fit = (fit_filter_error if settings.time_domain_method == "filter_error"
+        fit = (fit_filter_error if settings.time_domain_estimator == "filter_error"
                else fit_time_domain)
         self.fit("time_domain", "time-domain identification",
                  lambda: fit(self.campaign_data, maneuvers=settings.time_domain_maneuvers,
