@@ -466,6 +466,7 @@ def test_reduction_and_provenance(report):
     assert prov["campaign seed"] == "7"
     assert "sweep_lon_1: 100" in prov["manoeuvre seeds"]
     assert {"python", "numpy", "xarray", "matplotlib", "sysid version (report)"} <= set(prov)
+    assert "method=time_domain" in prov["model time_domain"]  # which estimator made it
     assert "name = &#x27;synthetic hover&#x27;" in html
 
 

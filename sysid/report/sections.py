@@ -811,7 +811,8 @@ def section_provenance(ctx: Context) -> str:
     if seeds:
         rows.append(["manoeuvre seeds", ", ".join(seeds)])
     for m, ds in read.models(ctx.tree).items():
-        info = [f"{k}={ds.attrs[k]}" for k in ("structure", "optimizer", "start", "pairs")
+        info = [f"{k}={ds.attrs[k]}" for k in ("method", "estimator", "structure",
+                                                "optimizer", "start", "pairs")
                 if k in ds.attrs]
         if info:
             rows.append([f"model {m}", "; ".join(map(str, info))])
