@@ -63,7 +63,7 @@ record by record (same steps, no tall Jacobian formed); :data:`FINITE_DIFFERENCE
 the first version's differences.
 
 Accuracy: Cramer-Rao bounds from the innovations' information matrix
-``M = sum_k S[k]^T Sigma^-1 S[k]`` (``S = de/d(theta, F, r, b, x0)``, the analytic
+``M = sum_k S[k]^T Sigma^-1 S[k]`` (``S = de/d(theta, U, D, R, b, x0)``, the analytic
 sensitivities at the optimum); the bounds of the structure parameters have ``F``, the biases and initial
 states marginalised (Schur complement). They are honest when the innovations are white,
 which the result reports as the normalised autocorrelation of each whitened innovation at
@@ -410,7 +410,7 @@ class _Predictor:
             # ... plus the bias and initial state, which enter linearly
             Sx, De = own[rec.dt][0][:N], own[rec.dt][1][:N]
             if b is None:
-                c = self._nuisance(E, De)
+                c = self._nuisance(run, r, E)
             else:
                 c = np.concatenate([b[r] if self.biases else [], x0[r] if self.initial_state
                                     else []])
@@ -444,17 +444,28 @@ class _Predictor:
             De[:, :, :p] -= np.eye(p)
         return Sx, De
 
-    def _nuisance(self, E, De) -> np.ndarray:
-        """Bias and initial state of one record minimising its whitened innovations
+    def _own_factor(self, run, r):
+        """``(B_c, keep, L)`` of record ``r``: its whitened bias and initial-state
+        sensitivities (N p, n_rec), the columns independent of earlier ones and the Cholesky
+        factor of their Gram matrix (cached in ``run``: the solve and the normal equations
+        share it)."""
+        cache = run.setdefault("own_factor", {})
+        if r not in cache:
+            rec = self.records[r]
+            Bc = np.matmul(self.whitener, run["own"][rec.dt][1][:len(rec.time)]).reshape(
+                -1, self.n_rec)
+            cache[r] = (Bc, *_independent_gram(Bc.T @ Bc))
+        return cache[r]
+
+    def _nuisance(self, run, r, E) -> np.ndarray:
+        """Bias and initial state of record ``r`` minimising its whitened innovations
         ``|Sigma^-1/2 (E + De c)|`` (weighted linear least squares; a column dependent on
         earlier ones, e.g. the initial heading beside the heading bias, is held at 0)."""
         c = np.zeros(self.n_rec)
         if not self.n_rec:
             return c
-        Bo = np.matmul(self.whitener, De).reshape(-1, self.n_rec)
-        v = (E @ self.whitener.T).ravel()
-        keep, L = _independent_gram(Bo.T @ Bo)
-        c[keep] = -_chol_solve(L, Bo[:, keep].T @ v)
+        Bc, keep, L = self._own_factor(run, r)
+        c[keep] = -_chol_solve(L, Bc[:, keep].T @ (E @ self.whitener.T).ravel())
         return c
 
     def innovations(self, beta) -> list[np.ndarray]:
@@ -664,7 +675,8 @@ class _Predictor:
         without forming it: ``J^T J`` is the Schur complement
         ``G_aa - G_ac G_cc^-1 G_ca`` of each record's joint Gram matrix, and
         ``J^T r = S_a^T r`` (the nuisance's normal equations ``S_c^T r = 0``)."""
-        E = self._run(np.asarray(alpha, float))["E"]
+        run = self._run(np.asarray(alpha, float))
+        E = run["E"]
         na = self.n_alpha
         G = np.zeros((na, na))
         g = np.zeros(na)
@@ -677,8 +689,7 @@ class _Predictor:
             g += Ba.T @ v
             rr += float(v @ v)
             if self.n_rec:
-                Bc = Bm[:, na:]
-                keep, L = _independent_gram(Bc.T @ Bc)
+                Bc, keep, L = self._own_factor(run, r)
                 T = scipy.linalg.solve_triangular(L, Bc[:, keep].T @ Ba, lower=True)
                 G -= T.T @ T
         return G, g, rr
