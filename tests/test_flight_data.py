@@ -16,6 +16,7 @@ the same structure (:func:`sysid.truth.linearize.truth_for_structure`).
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import tomllib
@@ -150,6 +151,24 @@ def test_duplicate_manoeuvre_names_are_refused(tmp_path):
         read_flight_data([tmp_path / "a.csv", tmp_path / "b.csv"])
 
 
+def test_run_data_passes_the_time_domain_estimator(tmp_path, monkeypatch):
+    """``sysid run --data --time-domain-method`` reaches the flight-data chain (it was once
+    silently dropped there); the default is auto."""
+    import sysid.cli.run as cli_run
+
+    seen = []
+
+    def fake(files, out, **kw):
+        seen.append(kw["time_domain_method"])
+        return tmp_path / "report.html"
+
+    monkeypatch.setattr(cli_run, "run_flight_data", fake)
+    for extra, expected in (([], "auto"), (["--time-domain-method", "output-error"],
+                                           "output_error")):
+        assert main(["run", "--data", str(tmp_path / "a.csv"), "-q", *extra]) == 0
+        assert seen[-1] == expected
+
+
 # -- the whole chain on a known system -------------------------------------------------------
 
 
@@ -202,6 +221,11 @@ def test_known_system_chain_writes_everything_and_reads_no_truth(known_system_ch
         model = data.model(method)
         assert tuple(map(str, model.output.values)) == ACC_OUTPUTS
     assert data.model("time_domain").attrs["start_source"] == "/models/frequency_domain"
+    # the default time-domain estimator, its process noise on the measured states only
+    td = data.model("time_domain")
+    assert td.attrs["method"] == "filter_error"
+    noisy = {i for i, j in json.loads(td.attrs["process_noise_entries"])}
+    assert noisy and not noisy & {"u", "v", "w"}
     fitted = set(pair_costs(data.model("frequency_domain")))
     assert {"ax/lon", "ay/lat", "az/col", "ay/ped"} <= fitted and not fitted & {"u/lon"}
     assert sorted(data.results("verification")) == [f"sweep_{c}_1" for c in
