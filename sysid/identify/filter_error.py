@@ -593,9 +593,9 @@ class _Predictor:
         return dK
 
     def _sensitivities(self, beta):
-        """Per record ``(r, B)``, ``B`` (N, p, k) the whitened innovation sensitivities
-        ``Sigma^-1/2 de/dbeta`` on the record's columns (the structure, noise and then its own
-        bias and initial-state columns, ``k = n_theta + n_g + n_rec``): the sensitivities
+        """Per record ``(r, B)``, ``B`` (N, p, n_alpha) the whitened innovation sensitivities
+        ``Sigma^-1/2 de/dalpha`` to the structure and noise parameters (a record's own bias
+        and initial-state columns are :meth:`_own_factor`'s): the sensitivities
         ``dx^`` follow the predictor's recursion with ``K`` held,
         ``dx^[k+1] = (Phi - K C) dx^[k] + dPhi x^ + dGamma v + Gamma dv + dK e
         - K (dC x^ + dD u + db)``, ``dx^[0] = dx0``, and ``de = -(C dx^ + dC x^ + dD u + db)``.
@@ -604,7 +604,7 @@ class _Predictor:
         self.n_jac += 1
         theta, F, R, _, _ = self.split(beta)
         groups, C, D, disc = self.discrete(theta)
-        n, p, nt, ng, nr = self.n, self.p, self.n_theta, self.n_g, self.n_rec
+        n, p, nt, ng = self.n, self.p, self.n_theta, self.n_g
         dC = np.zeros((nt, p, n))
         dD = np.zeros((nt, p, len(self.structure.inputs)))
         for j, d in enumerate(self._dmat):
@@ -641,12 +641,10 @@ class _Predictor:
                 W[:, :, out_cols] -= np.matmul(K, O)
             for j, g in delays:
                 W[:, :, j] = np.outer(dV[:, g] / rec.dt, Gam[:, g])
-            B = np.empty((N, p, shared + nr))
-            np.matmul(WC, propagate(Phi - K @ C, W), out=B[:, :, :shared])
+            B = np.matmul(WC, propagate(Phi - K @ C, W))
             if O is not None:  # the direct terms dC x^ + dD u (whitened), then de = -(...)
                 B[:, :, out_cols] += np.matmul(self.whitener, O)
-            np.negative(B[:, :, :shared], out=B[:, :, :shared])
-            np.matmul(self.whitener, run["own"][rec.dt][1][:N], out=B[:, :, shared:])
+            np.negative(B, out=B)
             yield r, B
 
     def jacobian(self, beta) -> np.ndarray:
@@ -659,12 +657,14 @@ class _Predictor:
             blocks = list(self._sensitivities(beta))
         except (np.linalg.LinAlgError, ValueError):
             return J
-        shared, nr, rows = self.n_theta + self.n_g, self.n_rec, 0
+        run = self._run(np.asarray(beta, float))
+        shared, nr, rows = self.n_alpha, self.n_rec, 0
         for r, B in blocks:
-            block = B.reshape(-1, B.shape[2])
-            J[rows:rows + len(block), :shared] = block[:, :shared]
-            c0 = shared + r * nr
-            J[rows:rows + len(block), c0:c0 + nr] = block[:, shared:]
+            block = B.reshape(-1, shared)
+            J[rows:rows + len(block), :shared] = block
+            if nr:
+                c0 = shared + r * nr
+                J[rows:rows + len(block), c0:c0 + nr] = self._own_factor(run, r)[0]
             rows += len(block)
         return J
 
@@ -682,8 +682,7 @@ class _Predictor:
         g = np.zeros(na)
         rr = 0.0
         for r, B in self._sensitivities(alpha):
-            Bm = B.reshape(-1, B.shape[2])
-            Ba = Bm[:, :na]
+            Ba = B.reshape(-1, na)
             v = (E[r] @ self.whitener.T).ravel()
             G += Ba.T @ Ba
             g += Ba.T @ v
