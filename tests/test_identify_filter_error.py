@@ -266,6 +266,23 @@ def test_analytic_sensitivities_match_central_differences():
                                atol=1e-10 * np.abs(Jp.T @ Jp).max())
 
 
+def test_auto_process_noise_is_where_the_structure_says():
+    """``process_noise="auto"``: the states a structure declares (the gust enters this one's
+    heave and pitch rows; declared on w alone, q's entry of Q stays exactly 0 and the fit is
+    the one with ``["w"]`` named), else the measured states (both outputs here)."""
+    st = structure()
+    recs = records(2, gust=MC_GUST)
+    declared = LinearStructure(states=st.states, inputs=st.inputs, name="heave_pitch",
+                               parameters=st.parameters, attrs={"process_noise": "w"})
+    auto = identify_filter_error(recs, declared, start=st.theta0, process_noise="auto")
+    named = identify_filter_error(recs, st, start=st.theta0, process_noise=["w"])
+    q_auto = np.diag(auto.process_noise.values)
+    assert q_auto[1] == 0.0 and q_auto[0] > 0.0, q_auto
+    np.testing.assert_allclose(auto.theta, named.theta, rtol=1e-9)
+    measured = identify_filter_error(recs, st, start=st.theta0, process_noise="auto")
+    assert np.all(np.diag(measured.process_noise.values) > 0.0)
+
+
 def test_errors_name_what_is_wrong():
     st = structure()
     recs = records(0, gust=0.0)

@@ -229,6 +229,22 @@ def test_toml_keep_marks_what_model_reduction_must_not_remove(tmp_path):
             load_structure(bad, trim={"theta": 5.0})
 
 
+def test_toml_process_noise_names_states(tmp_path):
+    """A structure may declare where its disturbances enter (filter error's process noise);
+    the names must be states."""
+    path = tmp_path / "s.toml"
+    path.write_text(TOML.replace("\n\n[kinematics]", '\nprocess_noise = ["u", "q"]\n\n[kinematics]', 1))
+    assert load_structure(path, trim={"theta": 5.0}).attrs["process_noise"] == "u,q"
+    assert "process_noise" not in load_structure("hover_6dof", trim={"theta": 6.8,
+                                                                     "phi": -2.9}).attrs
+    hybrid = load_structure("hover_hybrid", trim={"theta": 6.8, "phi": -2.9})
+    assert hybrid.attrs["process_noise"] == "u,v,w,r,a1,b1"
+    path.write_text(TOML.replace("\n\n[kinematics]", '\nprocess_noise = ["u", "a1"]\n\n[kinematics]', 1))
+    with pytest.raises(InputDataError, match=r"process_noise names \['a1'\], which are not "
+                                             r"states"):
+        load_structure(path, trim={"theta": 5.0})
+
+
 def test_builtin_hover_structure():
     assert {"hover_6dof", "paper_hover"} <= set(builtin_structures())
     paper = load_structure("paper_hover", trim={"theta": 6.76, "phi": -2.87})

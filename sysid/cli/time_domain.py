@@ -17,7 +17,7 @@ structure's values.
 ::
 
     sysid identify-filter-error campaign.nc --maneuvers '3211_*' [--structure S.toml]
-                        [--start ...] [--process-noise measured|diagonal|full|u,v,w,r]
+                        [--start ...] [--process-noise auto|measured|diagonal|full|u,v,w,r]
                         [--outputs u,v,w,...] [--noise-starts 0.01:10,1:10]
                         [--no-reduction] [--quiet]
 
@@ -83,9 +83,11 @@ def register(subparsers) -> None:
     )
     _fit_arguments(f)
     f.add_argument("--process-noise", default=FILTER_ERROR_PROCESS_NOISE,
-                   help="'measured' (default: one entry per equation of a measured "
-                        "state), 'diagonal' (one per state equation), 'full' (any "
-                        "covariance) or comma-separated states carrying process noise")
+                   help="'auto' (default: the states the structure declares in its "
+                        "process_noise key, else 'measured'), 'measured' (one entry per "
+                        "equation of a measured state), 'diagonal' (one per state "
+                        "equation), 'full' (any covariance) or comma-separated states "
+                        "carrying process noise")
     f.add_argument("--noise-starts", default=None,
                    help="noise starts of the first fit as q:r factors of the default Q and "
                         "R start values, comma-separated; the lowest likelihood is kept "
@@ -173,7 +175,7 @@ def run_identify_filter_error(args: argparse.Namespace) -> int:
     data = CampaignData.read(args.campaign)
     outputs = _outputs(args)
     noise = args.process_noise.strip()
-    if noise not in ("diagonal", "full", "measured"):
+    if noise not in ("diagonal", "full", "measured", "auto"):
         noise = [s.strip() for s in noise.split(",") if s.strip()]
     result = fit_filter_error(data, maneuvers=args.maneuvers, structure=args.structure,
                               start=args.start, outputs=outputs, process_noise=noise,

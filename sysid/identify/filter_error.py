@@ -110,8 +110,8 @@ from sysid.identify.time_domain import (COST_SETTLED, MAX_COST_INCREASE, SOLVE_S
                                         _independent_gram, fit_inputs)
 from sysid.models import LinearStructure, discretize, propagate
 
-__all__ = ["FilterErrorResult", "identify_filter_error", "WHITENESS_LAGS", "NOISE_STARTS",
-           "SCREEN_PASSES"]
+__all__ = ["FilterErrorResult", "identify_filter_error", "process_noise_states",
+           "WHITENESS_LAGS", "NOISE_STARTS", "SCREEN_PASSES"]
 
 #: Lags (samples) at which the whiteness of the innovations is reported.
 WHITENESS_LAGS = 10
@@ -694,6 +694,15 @@ class _Predictor:
         return G, g, rr
 
 
+def process_noise_states(process_noise, structure: LinearStructure):
+    """``process_noise`` with ``"auto"`` resolved: the states the structure declares
+    (TOML ``process_noise``, where its disturbances enter), else ``"measured"``."""
+    if isinstance(process_noise, str) and process_noise == "auto":
+        declared = structure.attrs.get("process_noise", "")
+        return declared.split(",") if declared else "measured"
+    return process_noise
+
+
 def _noise_mask(process_noise, states: Sequence[str],
                 outputs: Sequence[str] = ()) -> np.ndarray:
     n = len(states)
@@ -704,8 +713,8 @@ def _noise_mask(process_noise, states: Sequence[str],
             return np.eye(n, dtype=bool)
         if process_noise == "measured":
             return np.diag([s in set(outputs) for s in states])
-        raise InputDataError(f"process_noise must be 'full', 'diagonal', 'measured', state "
-                             f"names or a boolean (state, state) mask of Q, not "
+        raise InputDataError(f"process_noise must be 'full', 'diagonal', 'measured', 'auto', "
+                             f"state names or a boolean (state, state) mask of Q, not "
                              f"{process_noise!r}")
     if len(process_noise) and all(isinstance(x, str) for x in process_noise):
         unknown = sorted(set(process_noise) - set(states))
@@ -767,10 +776,11 @@ def identify_filter_error(records, structure: LinearStructure, *,
         structure's.
     outputs : sequence of str, optional
         Fitted outputs (default: every structure output present in all records).
-    process_noise : {"full", "diagonal", "measured"}, state names or bool array (state, state)
+    process_noise : {"full", "diagonal", "measured", "auto"}, state names or bool array
         Estimated entries of ``Q = U D U^T`` (``D`` on the diagonal, ``U`` off it): lower
         triangle (any ``Q``), diagonal (independent noise per state equation), diagonal on
-        the states that are fitted outputs, diagonal on the named states only, or a mask.
+        the states that are fitted outputs, the structure's declared states
+        (:func:`process_noise_states`), diagonal on the named states only, or a mask.
     biases, initial_state : bool
         Estimate a bias per output and an initial predictor state per record.
     tol : float
@@ -908,7 +918,8 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
                                  f"{structure.name!r} has {structure.theta0.size} free "
                                  f"parameters {list(structure.free_names)}")
     n = len(structure.states)
-    mask = _noise_mask(process_noise, structure.states, outs)
+    mask = _noise_mask(process_noise_states(process_noise, structure), structure.states,
+                       outs)
     pred = _Predictor(structure, recs, outs, mask, biases, initial_state)
     n_samples = sum(len(r.time) for r in recs)
     p = len(outs)

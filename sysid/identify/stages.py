@@ -34,7 +34,8 @@ from sysid.core.util import Progress
 from sysid.data.campaign import CampaignData
 from sysid.identify.frequency_domain import (N_POINTS, FrequencyFitResult,
                                              equation_error_start, identify_frequency_domain)
-from sysid.identify.filter_error import NOISE_STARTS, FilterErrorResult, identify_filter_error
+from sysid.identify.filter_error import (NOISE_STARTS, FilterErrorResult, identify_filter_error,
+                                        process_noise_states)
 from sysid.identify.time_domain import TimeFitResult, identify_time_domain
 from sysid.models import LinearStructure, load_structure
 from sysid.truth.linearize import truth_for_structure
@@ -165,14 +166,16 @@ def fit_frequency_domain(data: CampaignData, *, structure: str = "hover_6dof",
     return result
 
 
-#: Process noise of :func:`fit_filter_error` by default: one independent entry per equation
-#: of a measured state (all of them when u..psi are measured, as on the truth helicopter's
-#: hover 3211s, where every dominant derivative's scatter came within 0.77-1.89 of its
-#: corrected bound over 20 seeds). On flight data without u, v, w (accelerometers instead)
-#: noise on the unmeasured speeds absorbed the collective response: the reduction removed
-#: Z_col and the model missed 2311_col (J_rms 2.41; measured states only: 0.40-0.69 on the
-#: four 2311s; docs/notes/2026-11-27-filter-error-default.md).
-FILTER_ERROR_PROCESS_NOISE = "measured"
+#: Process noise of :func:`fit_filter_error` by default: on the states the structure declares
+#: (TOML ``process_noise``: where its disturbances enter), else one independent entry per
+#: equation of a measured state. Measured states: on the truth helicopter's hover 3211s
+#: every dominant derivative's scatter came within 0.77-1.89 of its corrected bound over 20
+#: seeds; on flight data without u, v, w noise on the unmeasured speeds absorbed the
+#: collective response (the reduction removed Z_col, 2311_col J_rms 2.41; measured states
+#: only: 0.40-0.69; docs/notes/2026-11-27-filter-error-default.md). ``hover_hybrid``
+#: declares the force, yaw and flapping rows: the gusts reach roll and pitch through the
+#: flapping (docs/notes/2026-11-27-hybrid-process-noise.md).
+FILTER_ERROR_PROCESS_NOISE = "auto"
 
 
 def fit_filter_error(data: CampaignData, *, maneuvers: str = "*",
@@ -191,6 +194,7 @@ def fit_filter_error(data: CampaignData, *, maneuvers: str = "*",
     loaded = load_structure(structure, trim=data.trim(maneuvers))
     begin = start_values(data, loaded, start, fit="time_domain", progress=progress,
                          label="identify-filter-error")
+    process_noise = process_noise_states(process_noise, loaded)
     if progress is not None:
         progress.message(f"[sysid] identify-filter-error: {len(records)} record(s), "
                          f"{len(loaded.free_index)} parameters, process noise "

@@ -61,6 +61,9 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
         states  = ["u", "v", "w", "p", "q", "r", "phi", "theta", "psi"]
         inputs  = ["lon", "lat", "col", "ped"]
         outputs = [...]                    # default: the states (C = I)
+        process_noise = ["u", "v", "w"]    # optional: the states whose equations carry the
+                                           # filter error's process noise (where the
+                                           # disturbances enter); default its "measured"
 
         [kinematics]                       # fixed rigid-body terms in A (6-DoF states only)
         theta0 = "trim"                    # deg; "trim" = from the data's trim_theta
@@ -138,7 +141,7 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
             raise InputDataError(f"structure {source}: [{table}] must be a table, got "
                                  f"{spec[table]!r}")
     known_tables = {"name", "description", "states", "inputs", "outputs", "kinematics", "trim",
-                    "frequency_range", "output_equations", "sensors",
+                    "frequency_range", "process_noise", "output_equations", "sensors",
                     "A", "B", "C", "D", "delays"}
     extra = set(spec) - known_tables
     if extra:
@@ -185,6 +188,13 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
             raise InputDataError(f"structure {source}: frequency_range needs 0 <= omega_min < "
                                  f"omega_max, got {band!r}")
         attrs.update(fit_omega_min=lo, fit_omega_max=hi)
+    if "process_noise" in spec:
+        noisy = _names(spec["process_noise"], f"structure {source}: process_noise")
+        unknown = [s for s in noisy if s not in states]
+        if unknown:
+            raise InputDataError(f"structure {source}: process_noise names {unknown}, which "
+                                 f"are not states; expected some of {states}")
+        attrs["process_noise"] = ",".join(noisy)
     trim_all = {str(k): _number(v, f"structure {source}: [trim] {k}")
                 for k, v in dict(spec.get("trim", {})).items()}
     trim_all.update(trim)
