@@ -775,8 +775,9 @@ def plot_derivatives(ds: xr.Dataset, path: str | Path) -> Path | None:
             # triangles on its edge and counted in the title instead.
             far = np.isfinite(v) & (np.abs(v) > limit)
             off_scale += int(far.sum())
-            ax.plot(speeds[far] + shift * span, np.sign(v[far]) * limit,
-                    "^" if np.all(v[far] > 0) else "v", mfc="none", color=color, ms=5)
+            if far.any():
+                ax.plot(speeds[far] + shift * span, np.sign(v[far]) * limit,
+                        "^" if np.all(v[far] > 0) else "v", mfc="none", color=color, ms=5)
         truth = ok["truth"].sel(parameter=name)
         t = truth.groupby(ok.airspeed_kt).mean() if truth.notnull().any() else None
         if t is not None:
