@@ -483,6 +483,9 @@ def test_parameter_table_marks_every_parameter_beyond_a_guideline():
     assert "CR>" in rows["Z_lon"]
     assert not any(">" in rows[n] for n in ("Z_w", "M_q", "M_lon"))
     assert "3 parameter(s) marked" in parameter_rows(model)[-1]
+    # Z_lon's infinite bound leaves it undetermined (sign not fixed); Z_q's 25 % does not
+    assert parameter_rows(model)[-1].endswith("undetermined by the data (bound above 100 % of "
+                                              "the value): Z_lon inf %")
     # time domain: the corrected bound (here 30 % on M_q) marks a parameter the white one
     # (5 %) would not, and both columns are shown
     model["cramer_rao_corrected"] = ("parameter", model["cramer_rao"].values * 6)

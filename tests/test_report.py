@@ -35,6 +35,8 @@ OMEGA = np.logspace(np.log10(0.3), np.log10(20.0), 90)
 DT = 0.02
 #: CR % put into the time-domain model for M_q: breaks the 20 % guideline.
 TD_BAD_CR = ("M_q", 35.0)
+#: A parameter of the poor model the data leave undetermined (bound above its value).
+ND_UNDETERMINED = ("L_p", 150.0)
 
 
 # --------------------------------------------------------------------------------------------
@@ -166,6 +168,7 @@ def synthetic_campaign():
               "cost_after": 262.0, "accepted": False}]
     nd = _model(st, nd_theta, "no_delay", rng, cr_scale=6.0, j_pairs=j_nd,
                 extra_attrs={"reduction_steps": json.dumps(steps)})
+    nd["cramer_rao_percent"].loc[{"parameter": ND_UNDETERMINED[0]}] = ND_UNDETERMINED[1]
 
     # Composite data: truth response with 2 % complex noise; coherence rising from low freq.
     T = frequency_response(lin, OMEGA)
@@ -417,6 +420,16 @@ def test_guideline_table_pass_fail_consistent_with_inputs(report, campaign):
         assert float(cells["j_rms"][m]["text"].split()[0]) == pytest.approx(jr, rel=5e-3)
         tic = max(float(v.tic.sel(source=m).max()) for v in campaign["verification"].values())
         assert _verdict(cells["tic"][m]) == ("PASS" if tic <= 0.25 else "FAIL")
+        # undetermined: every free parameter whose bound (plain or corrected) tops 100 % of
+        # its value is named, none other; information only (no verdict)
+        pct = ds.cramer_rao_percent.fillna(np.inf)
+        if "cramer_rao_percent_corrected" in ds:
+            pct = np.maximum(pct, ds.cramer_rao_percent_corrected.fillna(-np.inf))
+        over = {str(n) for n in ds.parameter.values[(pct > 100).values & ds.free.values]}
+        text = cells["undetermined"][m]["text"]
+        named = set() if text.startswith("none") else {
+            item.split()[0] for item in text.split(", ")}
+        assert named == over, (m, text, over)
     # The cases built to fail do fail, and the good model passes.
     assert _verdict(cells["J_ave"]["no_delay"]) == "FAIL"
     assert _verdict(cells["pair_J"]["no_delay"]) == "FAIL"
@@ -424,6 +437,9 @@ def test_guideline_table_pass_fail_consistent_with_inputs(report, campaign):
     assert _verdict(cells["cramer_rao_percent"]["time_domain"]) == "FAIL"
     assert TD_BAD_CR[0] in cells["cramer_rao_percent"]["time_domain"]["text"]
     assert _verdict(cells["cramer_rao_percent"]["frequency_domain"]) == "PASS"
+    assert cells["undetermined"]["no_delay"]["text"].startswith(
+        f"{ND_UNDETERMINED[0]} {ND_UNDETERMINED[1]:.1f} %")
+    assert cells["undetermined"]["frequency_domain"]["text"].startswith("none")
 
 
 def test_coherence_table_uses_the_fit_range(report, campaign):

@@ -16,7 +16,8 @@ References
 from __future__ import annotations
 
 __all__ = ["COHERENCE_MIN", "CROSS_COHERENCE_MAX", "J_AVE_MAX", "J_PAIR_MAX",
-           "CR_MAX_PERCENT", "INSENSITIVITY_MAX_PERCENT", "COST_INCREASE_MAX",
+           "CR_MAX_PERCENT", "INSENSITIVITY_MAX_PERCENT", "UNDETERMINED_PERCENT",
+           "COST_INCREASE_MAX",
            "BIAS_BOUNDS_MAX", "J_RMS_MAX", "TIC_MAX", "FIT_TIME_LIMIT_S", "GAP_MIN_STEPS",
            "GAP_MAX_STEPS", "GUIDELINES", "REDUCTION_GUIDELINES"]
 
@@ -39,6 +40,11 @@ J_PAIR_MAX = 200.0
 CR_MAX_PERCENT = 20.0
 #: Insensitivity, % of |value| ([TR] I <= 10 %).
 INSENSITIVITY_MAX_PERCENT = 10.0
+#: Cramer-Rao bound, % of |value|, at which the data no longer fix an estimate's sign: the
+#: parameter is undetermined, whatever the structure keeps it for (e.g. a hybrid's slow-mode
+#: speed terms when their responses lack coherence). Tables and the report list such
+#: parameters (a project choice: one standard deviation reaching zero).
+UNDETERMINED_PERCENT = 100.0
 #: Largest rise of the cost (units of J_ave) a parameter's removal may cause in the stepwise
 #: reduction ([TR] model-structure reduction: removals must leave the cost nearly unchanged).
 COST_INCREASE_MAX = 2.0

@@ -90,7 +90,7 @@ import scipy.optimize
 import xarray as xr
 
 from sysid.core.errors import IdentificationError, InputDataError
-from sysid.core.guidelines import COHERENCE_MIN, FIT_TIME_LIMIT_S
+from sysid.core.guidelines import COHERENCE_MIN, FIT_TIME_LIMIT_S, UNDETERMINED_PERCENT
 from sysid.identify.least_squares import STALL_WINDOW, Stalled, compress, stall_watch
 from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
                                       STOPPED_ABOVE_CEILING, StoppedAboveCeiling,
@@ -152,7 +152,7 @@ CONDITIONAL_START = True
 #: ``L_x / L_p`` in p/lat, and the whole roll row grows together (quick 100-kt campaign:
 #: 27x the linearisation, CR 235-250 %, on to 1e15 in the model reduction).
 RUNAWAY_FACTOR = 10.0
-RUNAWAY_CR_PERCENT = 100.0
+RUNAWAY_CR_PERCENT = UNDETERMINED_PERCENT
 #: Runaway damping derivatives are held at their start values (the a priori model), which
 #: fixes the scale of their row while the ratios of the others to them stay identified.
 #: Other runaway parameters are left to the model reduction.

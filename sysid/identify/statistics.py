@@ -47,9 +47,11 @@ import numpy as np
 import scipy.fft
 import xarray as xr
 
-from sysid.core.guidelines import CR_MAX_PERCENT, INSENSITIVITY_MAX_PERCENT
+from sysid.core.guidelines import (CR_MAX_PERCENT, INSENSITIVITY_MAX_PERCENT,
+                                   UNDETERMINED_PERCENT)
 
 __all__ = ["ParameterStatistics", "parameter_statistics", "correlated_pairs",
+           "undetermined_parameters",
            "residual_autocorrelation", "correlation_lag", "coloured_residual_covariance",
            "ColouredBounds", "guideline_mark", "robust_scale", "OUTLYING_SCALES"]
 
@@ -184,6 +186,24 @@ def guideline_mark(cramer_rao_percent: float, insensitivity_percent: float, *,
     return " ".join(marks)
 
 
+def undetermined_parameters(model) -> list[tuple[str, float]]:
+    """Free parameters of a model Dataset whose Cramer-Rao bound (the larger of the plain and
+    the corrected one, %) exceeds :data:`UNDETERMINED_PERCENT`: ``(name, percent)``, the
+    largest first. The data do not fix their sign, whatever the structure keeps them for."""
+    if "cramer_rao_percent" not in model or "free" not in model:
+        return []
+    pct = model["cramer_rao_percent"].values.astype(float)
+    pct = np.where(np.isnan(pct), np.inf, pct)
+    if "cramer_rao_percent_corrected" in model:
+        corrected = model["cramer_rao_percent_corrected"].values.astype(float)
+        pct = np.where(np.isfinite(corrected), np.maximum(pct, corrected), pct)
+    free = model["free"].values.astype(bool)
+    names = [str(n) for n in model["parameter"].values]
+    out = [(names[k], float(pct[k])) for k in np.flatnonzero(free)
+           if not pct[k] <= UNDETERMINED_PERCENT]
+    return sorted(out, key=lambda item: -item[1])
+
+
 def parameter_rows(model, *, absolute_cr: bool = False) -> list[str]:
     """Table lines (header first) of the free parameters of a model Dataset: value,
     optionally the absolute Cramer-Rao bound, CR %, the bound corrected for coloured residuals
@@ -191,7 +211,8 @@ def parameter_rows(model, *, absolute_cr: bool = False) -> list[str]:
     frequency domain the bound scaled by the fit residuals) and
     insensitivity %, then a mark where a parameter breaks the 20 % CR guideline (on the larger
     of its bounds) or the 10 % insensitivity guideline (:func:`guideline_mark`), and an
-    ``unidentifiable`` flag; followed by a line saying what the marks mean and one listing
+    ``unidentifiable`` flag; followed by a line saying what the marks mean and which
+    parameters the data leave undetermined (:data:`UNDETERMINED_PERCENT`), and one listing
     the free delays in ms."""
     corrected = ("cramer_rao_corrected" in model
                  and bool(np.isfinite(model["cramer_rao_corrected"].values).any()))
@@ -224,6 +245,10 @@ def parameter_rows(model, *, absolute_cr: bool = False) -> list[str]:
     note = (f"guidelines: CR % <= {CR_MAX_PERCENT:g}"
             + (" (the larger of CR % and CRc %)" if corrected else "")
             + f", I % <= {INSENSITIVITY_MAX_PERCENT:g}; {marked} parameter(s) marked")
+    undetermined = undetermined_parameters(model)
+    if undetermined:
+        note += (f"; undetermined by the data (bound above {UNDETERMINED_PERCENT:g} % of the "
+                 "value): " + ", ".join(f"{n} {format_percent(v)} %" for n, v in undetermined))
     if corrected and "residual_window_lag_points" in model.attrs:
         note += ("; CRc: scaled by the fit residuals, correlated over "
                  f"{int(model.attrs['residual_window_lag_points'])} frequency points")

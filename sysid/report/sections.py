@@ -27,9 +27,9 @@ import sysid.report.plots as plots
 import sysid.report.read as read
 from sysid import __version__
 from sysid.assess.envelopes import check_envelope, mismatch
-from sysid.core.guidelines import BIAS_BOUNDS_MAX, GUIDELINES
+from sysid.core.guidelines import BIAS_BOUNDS_MAX, GUIDELINES, UNDETERMINED_PERCENT
 from sysid.assess.comparison import BIAS_MEANING, fidelity_scoreboard
-from sysid.identify.statistics import guideline_mark
+from sysid.identify.statistics import format_percent, guideline_mark, undetermined_parameters
 from sysid.core.errors import InputDataError
 from sysid.models import model_from_dataset
 from sysid.truth.linearize import truth_for_structure
@@ -717,6 +717,16 @@ def section_guidelines(ctx: Context, pair_results: dict[str, PairResult], time: 
             cells.append(cell(v, v <= g[key], m, f"max {num(v, '.3g')} % ({name})"
                               if name else None))
         row(key, f"{label} ≤ {g[key]:g} % (free parameters)", cells)
+    cells = []
+    for m in columns:
+        if m not in models:
+            cells.append(cell(None, None, m))
+            continue
+        found = undetermined_parameters(models[m])
+        text = ", ".join(f"{n} {format_percent(v)} %" for n, v in found) if found else "none"
+        cells.append(cell(float(len(found)), None, m, text))
+    row("undetermined", f"undetermined by the data: CR > {UNDETERMINED_PERCENT:g} % "
+        "(information)", cells)
     for key, label in (("j_rms", f"J_rms ≤ {g['j_rms']:g} (worst manoeuvre)"),
                        ("tic", f"TIC ≤ {g['tic']:g} (worst manoeuvre and channel)")):
         cells = []
