@@ -51,7 +51,7 @@ from sysid.core.guidelines import (CR_MAX_PERCENT, INSENSITIVITY_MAX_PERCENT,
                                    UNDETERMINED_PERCENT)
 
 __all__ = ["ParameterStatistics", "parameter_statistics", "correlated_pairs",
-           "undetermined_parameters",
+           "undetermined_parameters", "format_undetermined",
            "residual_autocorrelation", "correlation_lag", "coloured_residual_covariance",
            "ColouredBounds", "guideline_mark", "robust_scale", "OUTLYING_SCALES"]
 
@@ -204,6 +204,11 @@ def undetermined_parameters(model) -> list[tuple[str, float]]:
     return sorted(out, key=lambda item: -item[1])
 
 
+def format_undetermined(found: Sequence[tuple[str, float]]) -> str:
+    """``"L_v 677.1 %, N_v 665.0 %"`` for :func:`undetermined_parameters`' list."""
+    return ", ".join(f"{name} {format_percent(pct)} %" for name, pct in found)
+
+
 def parameter_rows(model, *, absolute_cr: bool = False) -> list[str]:
     """Table lines (header first) of the free parameters of a model Dataset: value,
     optionally the absolute Cramer-Rao bound, CR %, the bound corrected for coloured residuals
@@ -248,7 +253,7 @@ def parameter_rows(model, *, absolute_cr: bool = False) -> list[str]:
     undetermined = undetermined_parameters(model)
     if undetermined:
         note += (f"; undetermined by the data (bound above {UNDETERMINED_PERCENT:g} % of the "
-                 "value): " + ", ".join(f"{n} {format_percent(v)} %" for n, v in undetermined))
+                 f"value): {format_undetermined(undetermined)}")
     if corrected and "residual_window_lag_points" in model.attrs:
         note += ("; CRc: scaled by the fit residuals, correlated over "
                  f"{int(model.attrs['residual_window_lag_points'])} frequency points")

@@ -29,7 +29,8 @@ from sysid import __version__
 from sysid.assess.envelopes import check_envelope, mismatch
 from sysid.core.guidelines import BIAS_BOUNDS_MAX, GUIDELINES, UNDETERMINED_PERCENT
 from sysid.assess.comparison import BIAS_MEANING, fidelity_scoreboard
-from sysid.identify.statistics import format_percent, guideline_mark, undetermined_parameters
+from sysid.identify.statistics import (format_undetermined, guideline_mark,
+                                      undetermined_parameters)
 from sysid.core.errors import InputDataError
 from sysid.models import model_from_dataset
 from sysid.truth.linearize import truth_for_structure
@@ -723,7 +724,7 @@ def section_guidelines(ctx: Context, pair_results: dict[str, PairResult], time: 
             cells.append(cell(None, None, m))
             continue
         found = undetermined_parameters(models[m])
-        text = ", ".join(f"{n} {format_percent(v)} %" for n, v in found) if found else "none"
+        text = format_undetermined(found) if found else "none"
         cells.append(cell(float(len(found)), None, m, text))
     row("undetermined", f"undetermined by the data: CR > {UNDETERMINED_PERCENT:g} % "
         "(information)", cells)
