@@ -84,6 +84,22 @@ def test_fmu_holds_match_every_branch_of_the_law(hover, variant):
     _assert_same_bytes(reference, fmu)
 
 
+def test_a_manoeuvres_own_turbulence_replaces_the_campaigns(hover):
+    """A sweep flown with its own turbulence 0 in a turbulent campaign is, to the last bit,
+    the sweep of the same campaign flown in calm air; the campaign's gusts are there without
+    the override. The record says what it was flown in."""
+    _, trim, linearization, sim = hover
+    turbulent = _short(cp.default_campaign(seed=4), names=("sweep_lat_1",))
+    loops = cp.design_loops(linearization.quasi_steady, turbulent.stabilisation)
+    m = turbulent.maneuvers[0]
+    calm = cp.fly(sim, trim, loops, m, dataclasses.replace(turbulent, turbulence=0.0))
+    own = cp.fly(sim, trim, loops, dataclasses.replace(m, turbulence=0.0), turbulent)
+    gusty = cp.fly(sim, trim, loops, m, turbulent)
+    _assert_same_bytes({"a": calm}, {"a": own})
+    assert calm.attrs["turbulence_m_s"] == 0.0 and gusty.attrs["turbulence_m_s"] == 0.3
+    assert not np.array_equal(gusty["v"].values, calm["v"].values)
+
+
 def test_holds_off_and_divergence_give_the_same_error(hover):
     """Stabilisation off in hover: the unstable airframe leaves the attitude limit; both
     implementations raise at the same sample naming the manoeuvre, the time and the channel."""

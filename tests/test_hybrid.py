@@ -440,3 +440,47 @@ def test_forward_hybrid_on_the_full_linear_response(forward_lin):
     for name in ("L_p", "M_q", "L_lat", "M_lon"):
         assert _error(got[name], want[name]) <= DERIVATIVE_TOL, (name, got[name], want[name])
     assert _error(got["tau_a1"], want["tau_a1"]) <= TAU_F_TOL, (got["tau_a1"], want["tau_a1"])
+
+
+# --- The whole hybrid study with the sweeps flown in calm air (issue 22) ---------------------
+# docs/notes/2026-11-27-hybrid-turbulence-lateral-speed-terms.md: in the default campaign's
+# turbulence v/ped has no coherent range and the frequency-domain hybrid's lateral speed terms
+# go undetermined (2311_col 0.91-1.95 on five seeds); with the sweeps flown in calm air (the
+# 3211s and 2311s keep the turbulence) both models meet the issue's figures on the default
+# seed (docs/notes/2026-11-27-hybrid-calm-sweeps.md).
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(os.environ.get("SYSID_EXHAUSTIVE") != "1",
+                    reason="a whole hover_hybrid study (about 60 s on 2 cores); "
+                    "SYSID_EXHAUSTIVE=1 runs it")
+def test_hybrid_study_with_calm_sweeps_meets_the_issue_figures(tmp_path):
+    """`sysid run hover --structure hover_hybrid --calm-sweeps`, default seed: both domains'
+    eight derivatives within 15 % of the truth for the structure and of each other, J_ave
+    <= 50, flapping time constants within 20 %, 2311 J_rms <= 1 on every axis for both
+    models, on 2311s flown in the campaign's turbulence."""
+    from sysid.data.netcdf import read_campaign
+    from sysid.pipeline.study import run_study
+
+    run_study(tmp_path, StudySettings(structure=HYBRID, calm_sweeps=True), quiet=True)
+    tree = read_campaign(tmp_path / "campaign.nc")
+    assert tree["maneuvers/sweep_ped_1"].attrs["turbulence_m_s"] == 0.0
+    assert tree["maneuvers/2311_col"].attrs["turbulence_m_s"] > 0.0
+    truth = _figures(truth_for_structure(tree["linearization_full"].to_dataset(),
+                                         load_structure(HYBRID,
+                                                        trim=CampaignData(tree).trim())))
+    models = {m: tree[f"models/{m}"].to_dataset() for m in ("frequency_domain", "time_domain")}
+    assert models["frequency_domain"].attrs["J_ave"] <= J_AVE_MAX
+    got = {m: _figures(ds) for m, ds in models.items()}
+    for name in ("L_p", "M_q", "L_lat", "M_lon", "Z_w", "Z_col", "N_r", "N_ped"):
+        for m in models:
+            assert _error(got[m][name], truth[name]) <= DERIVATIVE_TOL, (m, name)
+        assert _error(got["frequency_domain"][name],
+                      got["time_domain"][name]) <= DERIVATIVE_TOL, name
+    for name in ("tau_a1", "tau_b1"):
+        for m in models:
+            assert _error(got[m][name], truth[name]) <= TAU_F_TOL, (m, name)
+    for maneuver in ("2311_lon", "2311_lat", "2311_col", "2311_ped"):
+        ds = tree[f"verification/{maneuver}"].to_dataset()
+        for m in models:
+            assert float(ds["j_rms"].sel(source=m)) <= J_RMS_MAX, (maneuver, m)

@@ -12,7 +12,7 @@ from sysid.core.errors import InputDataError
 from sysid.flight_test.campaign import (HOVER_LATERAL_RISE, LINEAR_LATERAL_RISE, LINEAR_REGIME_SCALE,
                              Campaign, Maneuver, Stabilisation,
                              closed_loop_modes, default_campaign, design_loops,
-                             linear_regime_campaign, preflight_check)
+                             linear_regime_campaign, preflight_check, with_calm_sweeps)
 from sysid.core.units import CONTROLS, STATES_6DOF
 
 
@@ -66,7 +66,27 @@ def test_toml_round_trip(tmp_path):
     assert Campaign.from_toml(path) == c
 
 
+def test_calm_sweeps_are_the_same_campaign_with_only_the_sweeps_calm(capsys):
+    """A manoeuvre's own turbulence (None: the campaign's) survives the TOML round trip; a
+    campaign without it writes the TOML it always wrote (its cache keys stay)."""
+    from sysid.cli import main
+
+    c = default_campaign(seed=5)
+    calm = with_calm_sweeps(c)
+    assert c.turbulence == calm.turbulence > 0
+    for a, b in zip(c.maneuvers, calm.maneuvers):
+        assert a.turbulence is None
+        assert b.turbulence == (0.0 if a.kind == "sweep" else None)
+        assert dataclasses.replace(b, turbulence=None) == a
+    assert Campaign.from_dict(tomllib.loads(calm.to_toml())) == calm
+    assert "turbulence = 0.0" not in c.to_toml()
+    assert main(["simulate", "--calm-sweeps", "--print-default", "-o", "x.nc"]) == 0
+    assert Campaign.from_dict(tomllib.loads(capsys.readouterr().out)) == with_calm_sweeps(
+        default_campaign())
+
+
 @pytest.mark.parametrize("change, message", [
+    ({"turbulence": -0.1}, "turbulence must be >= 0"),
     ({"kind": "chirp"}, "kind 'chirp'"),
     ({"axis": "throttle"}, "axis 'throttle'"),
     ({"amplitude": -1.0}, "amplitude"),

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from sysid.core.errors import InputDataError
 from sysid.flight_test.campaign import (Campaign, default_campaign, linear_regime_campaign,
-                                        run_campaign)
+                                        run_campaign, with_calm_sweeps)
 from sysid.spectral.cross_control import campaign_summary
 
 
@@ -24,6 +25,9 @@ def register(subparsers) -> None:
                    help="airspeed in kt for the built-in campaign (default hover)")
     p.add_argument("--maneuvers", default="*", help="only manoeuvres matching this glob")
     p.add_argument("--no-noise", action="store_true", help="no sensor noise or turbulence")
+    p.add_argument("--calm-sweeps", action="store_true",
+                   help="fly the sweeps in calm air, the other manoeuvres in the campaign's "
+                        "turbulence")
     p.add_argument("--linear-regime", action="store_true",
                    help="the built-in campaign's sweeps for a check against the "
                         "linearisation: cyclic and pedal at half amplitude, calm air")
@@ -46,10 +50,14 @@ def _simulate(args) -> int:
         campaign = Campaign.from_toml(args.campaign)
         if args.no_noise:
             campaign.noise, campaign.turbulence = {}, 0.0
+            campaign.maneuvers = [dataclasses.replace(m, turbulence=None)
+                                  for m in campaign.maneuvers]
     elif args.linear_regime:
         campaign = linear_regime_campaign(args.speed or 0.0, noise=not args.no_noise)
     else:
         campaign = default_campaign(args.speed or 0.0, noise=not args.no_noise)
+    if args.calm_sweeps:
+        campaign = with_calm_sweeps(campaign)
     if args.print_default:
         print(campaign.to_toml(), end="")
         return 0

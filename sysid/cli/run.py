@@ -48,6 +48,10 @@ def register(subparsers) -> None:
     p.add_argument("--campaign", default=None, help="campaign TOML instead of the built-in")
     p.add_argument("--seed", type=int, default=20261121, help="campaign seed")
     p.add_argument("--no-noise", action="store_true", help="no sensor noise or turbulence")
+    p.add_argument("--calm-sweeps", action="store_true",
+                   help="fly the sweeps in calm air (the other manoeuvres keep the "
+                        "campaign's turbulence): what a hybrid structure's frequency-domain "
+                        "fit needs")
     p.add_argument("--time-domain-method", default=TIME_DOMAIN_AUTO,
                    choices=[TIME_DOMAIN_AUTO, *(m.replace("_", "-") for m in TIME_DOMAIN_METHODS)],
                    help="the time-domain estimator: filter error (process noise: turbulence "
@@ -68,7 +72,7 @@ def run(args) -> int:
     settings = StudySettings(
         airspeed_kt=speed if args.speed is None else args.speed,
         structure=args.structure or structure, seed=args.seed, noise=not args.no_noise,
-        campaign_file=args.campaign,
+        campaign_file=args.campaign, calm_sweeps=args.calm_sweeps,
         transient_states=transient_states(args),
         time_domain_method=args.time_domain_method.replace("-", "_"))
     report = run_study(Path(args.output or folder), settings, quiet=args.quiet)
@@ -82,7 +86,8 @@ def _run_data(args) -> int:
                              f"{args.study!r}")
     ignored = [opt for opt, given in (("--speed", args.speed is not None),
                                       ("--campaign", args.campaign is not None),
-                                      ("--no-noise", args.no_noise)) if given]
+                                      ("--no-noise", args.no_noise),
+                                      ("--calm-sweeps", args.calm_sweeps)) if given]
     if ignored:
         raise InputDataError(f"{', '.join(ignored)}: only for the built-in studies, not with "
                              "--data")

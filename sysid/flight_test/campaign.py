@@ -116,6 +116,9 @@ class Maneuver:
     sign: int = 1
     lead_in: float = 3.0
     lead_out: float = 5.0
+    #: Dryden rms gust intensity of this manoeuvre, m/s; None: the campaign's (air changes
+    #: over a test day: sweeps are flown in the calm, docs/methods.md, "Hybrid structures").
+    turbulence: float | None = None
 
     def validate(self) -> None:
         if self.kind not in KINDS:
@@ -130,6 +133,9 @@ class Maneuver:
                 f"manoeuvre {self.name!r}: need 0 < omega_min < omega_max (rad/s)")
         if self.kind == "sine" and not self.omega_min > 0:
             raise InputDataError(f"manoeuvre {self.name!r}: a sine needs omega_min > 0 (rad/s)")
+        if self.turbulence is not None and not self.turbulence >= 0:
+            raise InputDataError(f"manoeuvre {self.name!r}: turbulence must be >= 0 m/s (or "
+                                 f"left out for the campaign's), got {self.turbulence!r}")
 
 
 @dataclass
@@ -233,7 +239,7 @@ class Campaign:
         lines += [f"{k} = {_toml_value(v)}" for k, v in d["stabilisation"].items()]
         for m in d["maneuvers"]:
             lines.append("\n[[maneuvers]]")
-            lines += [f"{k} = {_toml_value(v)}" for k, v in m.items()]
+            lines += [f"{k} = {_toml_value(v)}" for k, v in m.items() if v is not None]
         return "\n".join(lines) + "\n"
 
 
@@ -298,6 +304,17 @@ def default_campaign(airspeed_kt: float = 0.0, *, noise: bool = True, seed: int 
     return Campaign(name=name, airspeed_kt=airspeed_kt, seed=seed, maneuvers=maneuvers,
                     noise=dict(DEFAULT_NOISE) if noise else {},
                     turbulence=0.3 if noise else 0.0, stabilisation=stabilisation)
+
+
+def with_calm_sweeps(campaign: Campaign) -> Campaign:
+    """A copy of ``campaign`` whose sweeps are flown in calm air (turbulence 0; the other
+    manoeuvres keep theirs). Why: in the default campaign's light turbulence v/ped has no
+    coherent range, so a hybrid's lateral speed terms go undetermined in the frequency
+    domain (docs/methods.md, "Hybrid structures"); flight-test practice flies sweeps in
+    calm air."""
+    return dataclasses.replace(campaign, maneuvers=[
+        dataclasses.replace(m, turbulence=0.0) if m.kind == "sweep" else m
+        for m in campaign.maneuvers])
 
 
 #: Amplitude factors of :func:`linear_regime_campaign` on the default sweeps, per axis.
@@ -644,9 +661,10 @@ def fly(sim, trim, loops: dict[str, _Loop], maneuver: Maneuver, campaign: Campai
         off_axis[:, axis] = 0.0
         pilot += off_axis
     gusts = None
-    if campaign.turbulence > 0:
+    intensity = campaign.turbulence if maneuver.turbulence is None else maneuver.turbulence
+    if intensity > 0:
         g = inputs.dryden_turbulence(n * dt, dt=dt, airspeed=campaign.airspeed_kt * KT,
-                                     altitude=30.0, intensity=campaign.turbulence, seed=seed + 1)
+                                     altitude=30.0, intensity=intensity, seed=seed + 1)
         gusts = np.stack([g[c].values[:n] for c in ("u_gust", "v_gust", "w_gust")], axis=1)
         gusts = convert(gusts, "m/s", "ft/s")  # the stepping API takes gusts in ft/s
 
@@ -828,5 +846,7 @@ def _time_history(applied, measured, dt, maneuver, campaign, trim, sim, seed) ->
         "stabilisation": "on" + (" (conditional)" if campaign.stabilisation.conditional else "")
         if campaign.stabilisation.enabled else "off",
     }
+    attrs["turbulence_m_s"] = float(campaign.turbulence if maneuver.turbulence is None
+                                    else maneuver.turbulence)
     attrs.update({f"trim_{c}": float(v) for c, v in trim.channel_values().items()})
     return xr.Dataset(data, coords={"time": ("time", time, {"units": "s"})}, attrs=attrs)

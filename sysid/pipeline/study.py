@@ -57,7 +57,8 @@ from sysid.core.units import CONTROLS, STATES_6DOF
 from sysid.core.util import Progress, blas_threads
 from sysid.data.campaign import CampaignData
 from sysid.data.netcdf import group_attrs, read_campaign, update_campaign_groups, write_campaign
-from sysid.flight_test.campaign import Campaign, default_campaign, run_campaign
+from sysid.flight_test.campaign import (Campaign, default_campaign, run_campaign,
+                                       with_calm_sweeps)
 from sysid.identify.stages import fit_filter_error, fit_frequency_domain, fit_time_domain
 from sysid.models import structure_path
 from sysid.report.html import write_report
@@ -136,6 +137,9 @@ class StudySettings:
     verification_maneuvers: str = "2311_*"
     sweep_maneuvers: str = "sweep_*"
     campaign_file: str | None = None  #: a campaign TOML instead of the built-in one
+    #: Fly the campaign's sweeps in calm air (:func:`sysid.flight_test.campaign.with_calm_sweeps`;
+    #: a hybrid structure's frequency-domain fit needs it, docs/methods.md, "Hybrid structures").
+    calm_sweeps: bool = False
     #: Leakage-free conditioning of the frequency responses
     #: (:func:`sysid.spectral.response.frequency_response`): ``"auto"`` conditions out the
     #: segment start/end transients of the measured states among u,v,w,p,q,r,phi,theta;
@@ -248,6 +252,8 @@ class _Study:
         else:
             self.campaign = default_campaign(settings.airspeed_kt, noise=settings.noise,
                                              seed=settings.seed)
+        if settings.calm_sweeps:
+            self.campaign = with_calm_sweeps(self.campaign)
         # (quick enters only when set, so that full studies keep their cache keys)
         quick = ("quick",) if settings.quick else ()
         self.key_campaign = _key("campaign", self.campaign.to_toml(), self.fmu_path.name,
