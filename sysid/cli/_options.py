@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 
+from sysid.pipeline.study import TIME_DOMAIN_AUTO, TIME_DOMAIN_METHODS
+
 
 def add_transient_options(parser: argparse.ArgumentParser) -> None:
     """``--transient-states`` and ``--no-transient-states`` of the frequency responses."""
@@ -20,3 +22,18 @@ def add_transient_options(parser: argparse.ArgumentParser) -> None:
 def transient_states(args: argparse.Namespace) -> str:
     """The ``transient_states`` argument of the library from the parsed options ("" = off)."""
     return "" if args.no_transient_states else args.transient_states
+
+
+def add_time_domain_method_option(parser: argparse.ArgumentParser, *, default: str | None,
+                                  help: str) -> None:
+    """``--time-domain-method`` (auto, output-error, filter-error); read it back with
+    :func:`time_domain_method`."""
+    parser.add_argument("--time-domain-method", default=default, help=help,
+                        choices=[TIME_DOMAIN_AUTO,
+                                 *(m.replace("_", "-") for m in TIME_DOMAIN_METHODS)])
+
+
+def time_domain_method(args: argparse.Namespace) -> str | None:
+    """The ``time_domain_method`` argument of the library (None when not given)."""
+    method = args.time_domain_method
+    return None if method is None else method.replace("-", "_")

@@ -6,7 +6,7 @@ import dataclasses
 
 from sysid.pipeline.batch import (default_conditions, format_calibration, format_summary,
                                   load_conditions, run_batch)
-from sysid.pipeline.study import TIME_DOMAIN_AUTO, TIME_DOMAIN_METHODS
+from sysid.cli._options import add_time_domain_method_option, time_domain_method
 
 
 def register(subparsers) -> None:
@@ -33,11 +33,11 @@ def register(subparsers) -> None:
     p.add_argument("--quick", action="store_true",
                    help="reduced campaign and study per condition (fast check; noisier "
                         "results; no per-condition report, FMUs or validation)")
-    p.add_argument("--time-domain-method", default=None,
-                   choices=[TIME_DOMAIN_AUTO, *(m.replace("_", "-") for m in TIME_DOMAIN_METHODS)],
-                   help="the time-domain estimator of every condition (default: the speeds "
-                        "file's, else auto: filter error, whose bounds are calibrated, and "
-                        "output error for --quick conditions)")
+    add_time_domain_method_option(
+        p, default=None,
+        help="the time-domain estimator of every condition (default: the speeds file's, "
+             "else auto: filter error, whose bounds are calibrated, and output error for "
+             "--quick conditions)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
@@ -49,8 +49,8 @@ def run(args) -> int:
         conditions = default_conditions()
     if args.quick:
         conditions = [dataclasses.replace(c, quick=True) for c in conditions]
-    if args.time_domain_method:
-        method = args.time_domain_method.replace("-", "_")
+    method = time_domain_method(args)
+    if method:
         conditions = [dataclasses.replace(c, time_domain_method=method) for c in conditions]
     result = run_batch(conditions, args.output, scheduler=args.scheduler,
                        n_workers=args.workers, quiet=args.quiet)

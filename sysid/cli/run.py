@@ -6,9 +6,9 @@ from pathlib import Path
 
 from sysid.core.errors import InputDataError
 from sysid.pipeline.flight_data import FLIGHT_DATA_STRUCTURE, run_flight_data
-from sysid.pipeline.study import (TIME_DOMAIN_AUTO, TIME_DOMAIN_METHODS, StudySettings,
-                                  run_study)
-from sysid.cli._options import add_transient_options, transient_states
+from sysid.pipeline.study import TIME_DOMAIN_AUTO, StudySettings, run_study
+from sysid.cli._options import (add_time_domain_method_option, add_transient_options,
+                                time_domain_method, transient_states)
 from sysid.cli.io import _pairs, _resample, _trim
 
 #: study name -> (default airspeed kt, default structure, default output folder)
@@ -52,11 +52,11 @@ def register(subparsers) -> None:
                    help="fly the sweeps in calm air (the other manoeuvres keep the "
                         "campaign's turbulence): what a hybrid structure's frequency-domain "
                         "fit needs")
-    p.add_argument("--time-domain-method", default=TIME_DOMAIN_AUTO,
-                   choices=[TIME_DOMAIN_AUTO, *(m.replace("_", "-") for m in TIME_DOMAIN_METHODS)],
-                   help="the time-domain estimator: filter error (process noise: turbulence "
-                        "under stabilising loops; its bounds are calibrated), output error "
-                        "(the paper's, faster) or auto (default: filter error)")
+    add_time_domain_method_option(
+        p, default=TIME_DOMAIN_AUTO,
+        help="the time-domain estimator: filter error (process noise: turbulence under "
+             "stabilising loops; its bounds are calibrated), output error (the paper's, "
+             "faster) or auto (default: filter error)")
     add_transient_options(p)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
@@ -74,7 +74,7 @@ def run(args) -> int:
         structure=args.structure or structure, seed=args.seed, noise=not args.no_noise,
         campaign_file=args.campaign, calm_sweeps=args.calm_sweeps,
         transient_states=transient_states(args),
-        time_domain_method=args.time_domain_method.replace("-", "_"))
+        time_domain_method=time_domain_method(args))
     report = run_study(Path(args.output or folder), settings, quiet=args.quiet)
     print(report.resolve())
     return 0
@@ -98,7 +98,7 @@ def _run_data(args) -> int:
                              trim=_trim(args.trim) or None, time=args.time, resample=resample,
                              structure=args.structure or FLIGHT_DATA_STRUCTURE,
                              transient_states=transient_states(args),
-                             time_domain_method=args.time_domain_method.replace("-", "_"),
+                             time_domain_method=time_domain_method(args),
                              quiet=args.quiet)
     print(report.resolve())
     return 0
