@@ -78,6 +78,10 @@ def test_cli_time_domain_method_applies_to_every_condition(tmp_path, monkeypatch
     assert len(seen["conditions"]) == 4
     assert {c.time_domain_method for c in seen["conditions"]} == {"filter_error"}
     assert all(c.name.endswith("_filter_error") for c in seen["conditions"])
+    assert not any(c.calm_sweeps for c in seen["conditions"])
+    with pytest.raises(Captured):
+        main(["batch", str(speeds), "--calm-sweeps", "-o", str(tmp_path / "out"), "-q"])
+    assert all(c.calm_sweeps for c in seen["conditions"])
     with pytest.raises(SystemExit):  # argparse refuses an unknown estimator
         main(["batch", "--time-domain-method", "least-squares"])
 
@@ -109,6 +113,15 @@ def test_speeds_file(tmp_path):
     assert Condition(0.0, quick=True).time_domain_estimator == "output_error"
     assert Condition(0.0, quick=True, time_domain_method="filter_error").time_domain_estimator \
         == "filter_error"
+    # calm sweeps (hybrid structures): named, passed to the study; a condition without it
+    # keeps the marker dict of earlier batches, so their resume still matches
+    path.write_text('speeds = [0]\ncalm_sweeps = true\n[structures]\nhover_hybrid = [0, 10]\n')
+    calm = load_conditions(path)[0]
+    assert calm.calm_sweeps and calm.name == "0kt_seed20261121_calmsweeps_hover_hybrid"
+    assert study_settings(calm, tmp_path).calm_sweeps
+    assert calm.to_dict()["calm_sweeps"] is True
+    assert "calm_sweeps" not in Condition(0.0).to_dict()
+    assert Condition(**calm.to_dict()) == calm
     path.write_text('speeds = [0]\ntime_domain_method = "kalman"\n')
     with pytest.raises(InputDataError, match="time_domain_method 'kalman'; expected one of"):
         load_conditions(path)

@@ -38,6 +38,10 @@ def register(subparsers) -> None:
         help="the time-domain estimator of every condition (default: the speeds file's, "
              "else auto: filter error, whose bounds are calibrated, and output error for "
              "--quick conditions)")
+    p.add_argument("--calm-sweeps", action="store_true",
+                   help="every condition's sweeps in calm air, its multisteps in the "
+                        "campaign's turbulence (what a hybrid structure's frequency-domain "
+                        "fit needs)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
@@ -49,6 +53,8 @@ def run(args) -> int:
         conditions = default_conditions()
     if args.quick:
         conditions = [dataclasses.replace(c, quick=True) for c in conditions]
+    if args.calm_sweeps:
+        conditions = [dataclasses.replace(c, calm_sweeps=True) for c in conditions]
     method = time_domain_method(args)
     if method:
         conditions = [dataclasses.replace(c, time_domain_method=method) for c in conditions]

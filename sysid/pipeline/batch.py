@@ -45,7 +45,8 @@ M_w, Z_u, L_v, N_v ... free); a condition or a speeds file can name another.
 
 The ``batch.nc`` Dataset (dims ``condition``, ``model`` (the identification method), ``parameter``):
 
-- coords on ``condition``: ``airspeed_kt``, ``seed``, ``noise`` (0/1), ``structure``,
+- coords on ``condition``: ``airspeed_kt``, ``seed``, ``noise`` (0/1), ``quick`` (0/1),
+  ``calm_sweeps`` (0/1), ``structure``,
   ``time_domain_method`` (the estimator of the ``time_domain`` model: output or filter
   error), ``status`` (``ok``/``failed``), ``error`` (type: message, "" when ok),
   ``elapsed_s``;
@@ -121,6 +122,9 @@ class Condition:
     #: The study's time-domain estimator (:data:`~sysid.pipeline.study.TIME_DOMAIN_METHODS`,
     #: or ``"auto"``: :attr:`~sysid.pipeline.study.StudySettings.time_domain_estimator`).
     time_domain_method: str = TIME_DOMAIN_AUTO
+    #: Sweeps flown in calm air, the multisteps in the campaign's turbulence
+    #: (:attr:`~sysid.pipeline.study.StudySettings.calm_sweeps`; hybrid structures).
+    calm_sweeps: bool = False
 
     @property
     def name(self) -> str:
@@ -131,6 +135,8 @@ class Condition:
             text += "_quick"
         if self.time_domain_method != TIME_DOMAIN_AUTO:
             text += "_" + self.time_domain_method
+        if self.calm_sweeps:
+            text += "_calmsweeps"
         if self.structure:
             text += "_" + Path(str(self.structure)).stem
         return text
@@ -146,13 +152,19 @@ class Condition:
         return settings.time_domain_estimator
 
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """The fields (``calm_sweeps`` only when set: the resume markers of earlier batches,
+        which lack it, still match their conditions)."""
+        out = dataclasses.asdict(self)
+        if not self.calm_sweeps:
+            del out["calm_sweeps"]
+        return out
 
 
 def conditions(speeds: Iterable[float] = DEFAULT_SPEEDS, seeds: Iterable[int] = (20261121,),
                *, noise: bool = True, quick: bool = False,
                structures: dict[str, tuple[float, float]] | None = None,
-               time_domain_method: str = TIME_DOMAIN_AUTO) -> list[Condition]:
+               time_domain_method: str = TIME_DOMAIN_AUTO,
+               calm_sweeps: bool = False) -> list[Condition]:
     """Every (speed, seed) combination as a :class:`Condition`.
 
     ``structures`` maps a structure (built-in name or TOML path) to an airspeed band
@@ -167,7 +179,7 @@ def conditions(speeds: Iterable[float] = DEFAULT_SPEEDS, seeds: Iterable[int] = 
                 break
         for s in seeds:
             out.append(Condition(float(v), int(s), bool(noise), structure, bool(quick),
-                                 time_domain_method))
+                                 time_domain_method, bool(calm_sweeps)))
     return out
 
 
@@ -180,6 +192,7 @@ def load_conditions(path: str | Path) -> list[Condition]:
         quick = false                       # reduced campaign and study (default false)
         time_domain_method = "auto"         # "filter_error", "output_error" or "auto" (the
                                             # default: filter error, output error if quick)
+        calm_sweeps = false                 # sweeps in calm air, multisteps in turbulence
 
         [structures]                        # optional: structure -> airspeed band [from, to) kt
         hover_6dof = [0, 30]
@@ -196,7 +209,7 @@ def load_conditions(path: str | Path) -> list[Condition]:
     except (OSError, tomllib.TOMLDecodeError) as exc:
         raise InputDataError(f"cannot read speeds file {path}: {exc}") from None
     known = {"speeds", "seeds", "noise", "quick", "structures", "conditions",
-             "time_domain_method"}
+             "time_domain_method", "calm_sweeps"}
     unknown = set(spec) - known
     if unknown:
         raise InputDataError(f"speeds file {path}: unknown keys {sorted(unknown)}; "
@@ -215,7 +228,7 @@ def load_conditions(path: str | Path) -> list[Condition]:
                              f"one of {(*TIME_DOMAIN_METHODS, TIME_DOMAIN_AUTO)}")
     out = conditions(speeds, seeds, noise=bool(spec.get("noise", True)),
                      quick=bool(spec.get("quick", False)), structures=bands,
-                     time_domain_method=method)
+                     time_domain_method=method, calm_sweeps=bool(spec.get("calm_sweeps", False)))
     fields = {f.name for f in dataclasses.fields(Condition)}
     for k, item in enumerate(spec.get("conditions", [])):
         bad = set(item) - fields
@@ -256,7 +269,8 @@ def study_settings(condition: Condition, folder: str | Path):
     return StudySettings(airspeed_kt=condition.airspeed_kt, seed=condition.seed,
                          noise=condition.noise, structure=condition.structure_name,
                          campaign_file=campaign_file, quick=condition.quick,
-                         time_domain_method=condition.time_domain_method)
+                         time_domain_method=condition.time_domain_method,
+                         calm_sweeps=condition.calm_sweeps)
 
 
 def _marker(folder: Path) -> Path:
@@ -706,6 +720,8 @@ def combine(conditions: Sequence[Condition], records: Sequence[dict]) -> xr.Data
         seed=("condition", [c.seed for c in conditions]),
         noise=("condition", np.array([int(c.noise) for c in conditions], dtype="int8")),
         quick=("condition", np.array([int(c.quick) for c in conditions], dtype="int8")),
+        calm_sweeps=("condition", np.array([int(c.calm_sweeps) for c in conditions],
+                                           dtype="int8")),
         structure=("condition", [c.structure_name for c in conditions]),
         time_domain_method=("condition", [c.time_domain_estimator for c in conditions]),
         status=("condition", [by_name[n]["status"] for n in names]),
