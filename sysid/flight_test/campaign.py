@@ -306,6 +306,12 @@ def default_campaign(airspeed_kt: float = 0.0, *, noise: bool = True, seed: int 
                     turbulence=0.3 if noise else 0.0, stabilisation=stabilisation)
 
 
+def flown_turbulence(maneuver: Maneuver, campaign: Campaign) -> float:
+    """The Dryden rms gust intensity (m/s) ``maneuver`` is flown in: its own, else the
+    campaign's."""
+    return float(campaign.turbulence if maneuver.turbulence is None else maneuver.turbulence)
+
+
 def with_calm_sweeps(campaign: Campaign) -> Campaign:
     """A copy of ``campaign`` whose sweeps are flown in calm air (turbulence 0; the other
     manoeuvres keep theirs). Why: in the default campaign's light turbulence v/ped has no
@@ -661,7 +667,7 @@ def fly(sim, trim, loops: dict[str, _Loop], maneuver: Maneuver, campaign: Campai
         off_axis[:, axis] = 0.0
         pilot += off_axis
     gusts = None
-    intensity = campaign.turbulence if maneuver.turbulence is None else maneuver.turbulence
+    intensity = flown_turbulence(maneuver, campaign)
     if intensity > 0:
         g = inputs.dryden_turbulence(n * dt, dt=dt, airspeed=campaign.airspeed_kt * KT,
                                      altitude=30.0, intensity=intensity, seed=seed + 1)
@@ -846,7 +852,6 @@ def _time_history(applied, measured, dt, maneuver, campaign, trim, sim, seed) ->
         "stabilisation": "on" + (" (conditional)" if campaign.stabilisation.conditional else "")
         if campaign.stabilisation.enabled else "off",
     }
-    attrs["turbulence_m_s"] = float(campaign.turbulence if maneuver.turbulence is None
-                                    else maneuver.turbulence)
+    attrs["turbulence_m_s"] = flown_turbulence(maneuver, campaign)
     attrs.update({f"trim_{c}": float(v) for c, v in trim.channel_values().items()})
     return xr.Dataset(data, coords={"time": ("time", time, {"units": "s"})}, attrs=attrs)
