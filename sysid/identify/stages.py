@@ -169,7 +169,7 @@ def fit_frequency_domain(data: CampaignData, *, structure: str = "hover_6dof",
 #: Process noise of :func:`fit_filter_error` by default: on the states the structure declares
 #: (TOML ``process_noise``: where its disturbances enter), else one independent entry per
 #: equation of a measured state. Measured states: on the truth helicopter's hover 3211s
-#: every dominant derivative's scatter came within 0.77-1.89 of its corrected bound over 20
+#: every dominant derivative's scatter came within 0.78-1.89 of its corrected bound over 20
 #: seeds; on flight data without u, v, w noise on the unmeasured speeds absorbed the
 #: collective response (the reduction removed Z_col, 2311_col J_rms 2.41; measured states
 #: only: 0.40-0.69; docs/notes/2026-11-27-filter-error-default.md). ``hover_hybrid``

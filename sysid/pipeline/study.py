@@ -129,7 +129,7 @@ class StudySettings:
     #: The time-domain part's estimator (:data:`TIME_DOMAIN_METHODS`): ``"filter_error"``
     #: (process noise for turbulence under feedback, diagonal ``Q``; its bounds are the
     #: calibrated ones; docs/methods.md, "Filter error (process noise)"), ``"output_error"``
-    #: (the paper's, about five times faster, its bounds too small under turbulence), or
+    #: (the paper's, about three times faster, its bounds too small under turbulence), or
     #: ``"auto"``: filter error, output error for a ``quick`` study (fast checks over many
     #: conditions). Either model is stored as ``/models/time_domain`` (its ``method``
     #: attribute says which).
