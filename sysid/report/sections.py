@@ -611,6 +611,10 @@ def section_fidelity(ctx: Context) -> str:
     truth = read.dataset(ctx.tree, "linearization")
     if truth is None:  # no truth to measure the errors against: omitted
         return ""
+    # a higher-order structure (e.g. flapping): the truth reduced to its states, as the
+    # derivative table and `sysid compare` judge it
+    quasi_steady = truth
+    truth = _truth_for(ctx.tree, next(iter(models.values())), truth)
     board = fidelity_scoreboard(models, truth)
     names = [str(n) for n in board.parameter.values
              if np.isfinite(float(board["truth"].sel(parameter=n)))]
@@ -641,8 +645,10 @@ def section_fidelity(ctx: Context) -> str:
                         f"{int(np.isfinite(board['error_in_bounds'].sel(model=m)).sum())} "
                         f"flagged" + (f" ({esc(', '.join(v))})" if v else "")
                         for m, v in flagged.items())
-    text = (f"<p>Each identified derivative against the truth model's quasi-steady "
-            f"linearisation, the error in units of the estimate's own one-sigma bound, the one "
+    against = ("quasi-steady linearisation" if truth is quasi_steady else
+               "linearisation reduced to the model's states")
+    text = (f"<p>Each identified derivative against the truth model's {against}, "
+            f"the error in units of the estimate's own one-sigma bound, the one "
             f"that does not count a repeatable misfit as noise (frequency domain: from the "
             f"spectral random error; time domain: corrected for coloured residuals; else the "
             f"plain bound; their Monte Carlo calibration: docs/methods.md, \"Accuracy\"). "
