@@ -132,6 +132,16 @@ def test_report_scoreboard_judges_a_hybrid_against_the_truth_for_its_structure(
     assert f"frequency_domain: 0 of {n} flagged" in html, html[:2000]
     assert 'class="fail"' not in html
     assert "linearisation reduced to the model's states" in html
+    # the one rule behind it (also the batch's truth column): a quasi-steady model gets the
+    # quasi-steady linearisation, a tree without one no truth
+    from sysid.assess.comparison import truth_for_model
+
+    np.testing.assert_allclose(truth_for_model(tree, model)["value"].values,
+                               truth["value"].values, rtol=1e-9, atol=1e-12)
+    assert truth_for_model(tree, hover_lin.quasi_steady) is not None
+    assert set(map(str, truth_for_model(tree, hover_lin.quasi_steady).parameter.values)) == \
+        set(map(str, hover_lin.quasi_steady.parameter.values))
+    assert truth_for_model(xr.DataTree.from_dict({"/models/x": model}), model) is None
 
 
 # --- One parameter on several entries (the shared flapping time constant) -------------------

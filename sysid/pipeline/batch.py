@@ -64,7 +64,8 @@ The ``batch.nc`` Dataset (dims ``condition``, ``model`` (the identification meth
   (:data:`CALIBRATION_BOUNDS`): ``calibration_scatter``, ``calibration_bound``,
   ``calibration_ratio``, ``calibration_mean``, ``calibration_truth``, ``calibration_n_seeds``;
 - ``truth`` (condition, parameter): the truth model's quasi-steady linearisation at the
-  condition (NaN for delays);
+  condition, for a higher-order structure (flapping) the linearisation reduced to its states
+  (:func:`sysid.assess.comparison.truth_for_model`); NaN for delays;
 - ``J_ave`` (condition, model); ``j_rms`` (condition, model): mean verification J_rms.
 """
 
@@ -85,7 +86,7 @@ from typing import Iterable, Sequence
 import numpy as np
 import xarray as xr
 
-from sysid.assess.comparison import DOMINANT
+from sysid.assess.comparison import DOMINANT, truth_for_model
 from sysid.core import errors
 from sysid.core.errors import InputDataError, SysidError
 from sysid.core.units import CONTROLS
@@ -382,10 +383,7 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
             continue
     if not models:
         raise SysidError(f"{folder}: the study has no identified model")
-    try:
-        truth = tree["linearization"].to_dataset()
-    except KeyError:
-        truth = None
+    truth = truth_for_model(tree, next(iter(models.values())))
     names: list[str] = []
     for model in models.values():
         names += [str(p) for p, f in zip(model.parameter.values, model["free"].values)
@@ -423,7 +421,8 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
         {"value": (dims, value),
          **{name: (dims, bounds[name], attrs) for name, attrs in _BOUND_VARIABLES.items()},
          "truth": (("parameter",), truth_values,
-                   {"long_name": "truth model's quasi-steady linearisation"}),
+                   {"long_name": "truth model's linearisation (quasi-steady, or reduced to "
+                                 "a higher-order structure's states)"}),
          "J_ave": (("model",), j_ave, {"long_name": "average frequency-domain cost"}),
          "j_rms": (("model",), j_rms,
                    {"long_name": "mean J_rms over the verification manoeuvres"})},
@@ -980,7 +979,7 @@ def calibration(ds: xr.Dataset, parameters: Sequence[str] = DOMINANT) -> xr.Data
              "long_name": "scatter / mean bound", "goal": list(CALIBRATION_GOAL)}),
          "calibration_mean": (dims, out["mean"], {"long_name": "mean estimate over seeds"}),
          "calibration_truth": (dims, out["truth"], {
-             "long_name": "truth model's quasi-steady linearisation (mean over seeds)"}),
+             "long_name": "truth model's linearisation as in truth (mean over seeds)"}),
          "calibration_n_seeds": (dims, count, {"long_name": "seeds with an estimate"})},
         coords={"calibration_kt": ("calibration_kt", speeds, {"units": "kt"}),
                 "dominant": params, "bound": bounds})

@@ -28,12 +28,9 @@ import sysid.report.read as read
 from sysid import __version__
 from sysid.assess.envelopes import check_envelope, mismatch
 from sysid.core.guidelines import BIAS_BOUNDS_MAX, GUIDELINES, UNDETERMINED_PERCENT
-from sysid.assess.comparison import BIAS_MEANING, fidelity_scoreboard
+from sysid.assess.comparison import BIAS_MEANING, fidelity_scoreboard, truth_for_model
 from sysid.identify.statistics import (format_undetermined, guideline_mark,
                                       undetermined_parameters)
-from sysid.core.errors import InputDataError
-from sysid.models import model_from_dataset
-from sysid.truth.linearize import truth_for_structure
 from sysid.spectral.response import NO_TRANSIENT_GROUP
 from sysid.core.units import CHANNELS, CONTROLS, STATES_6DOF
 from sysid.report.figures import Context
@@ -486,25 +483,11 @@ def _truth_value(lin: xr.Dataset | None, name: str, ref: xr.Dataset) -> float:
         return np.nan
 
 
-def _truth_for(tree: xr.DataTree, model: xr.Dataset, lin: xr.Dataset | None
-               ) -> xr.Dataset | None:
-    """The truth a model's parameters are compared with: the linearisation, or for a model
-    with states it lacks (e.g. flapping) the full one reduced to the model's structure."""
-    full = read.dataset(tree, "linearization_full")
-    if lin is None or full is None or "A" not in model or set(
-            map(str, model["A"].state.values)) <= set(map(str, lin["A"].state.values)):
-        return lin
-    try:
-        return truth_for_structure(full, model_from_dataset(model)[0])
-    except (ValueError, KeyError, InputDataError):  # e.g. outputs the FMU has not
-        return lin
-
-
 def _derivative_rows(ctx: Context, models: dict[str, xr.Dataset], kinds: tuple[str, ...]
                      ) -> tuple[list[str], list[list[str]]]:
     """Rows of a derivative table for the parameters of matrices ``kinds``."""
     lin = read.linearization(ctx.tree)
-    truth = {m: _truth_for(ctx.tree, ds, lin) for m, ds in models.items()}
+    truth = {m: truth_for_model(ctx.tree, ds) for m, ds in models.items()}
     dropped = {m: read.dropped(ctx.tree, m, ds) for m, ds in models.items()}
     names: list[str] = []
     owner: dict[str, str] = {}
@@ -608,13 +591,12 @@ def section_fidelity(ctx: Context) -> str:
               if "parameter" in ds.dims and "cramer_rao" in ds}
     if not models:
         return ""
-    truth = read.dataset(ctx.tree, "linearization")
+    # a higher-order structure (e.g. flapping): the truth reduced to its states
+    truth = truth_for_model(ctx.tree, next(iter(models.values())))
     if truth is None:  # no truth to measure the errors against: omitted
         return ""
-    # a higher-order structure (e.g. flapping): the truth reduced to its states, as the
-    # derivative table and `sysid compare` judge it
-    quasi_steady = truth
-    truth = _truth_for(ctx.tree, next(iter(models.values())), truth)
+    reduced = set(map(str, truth["A"].state.values)) != set(
+        map(str, read.linearization(ctx.tree)["A"].state.values))
     board = fidelity_scoreboard(models, truth)
     names = [str(n) for n in board.parameter.values
              if np.isfinite(float(board["truth"].sel(parameter=n)))]
@@ -645,8 +627,8 @@ def section_fidelity(ctx: Context) -> str:
                         f"{int(np.isfinite(board['error_in_bounds'].sel(model=m)).sum())} "
                         f"flagged" + (f" ({esc(', '.join(v))})" if v else "")
                         for m, v in flagged.items())
-    against = ("quasi-steady linearisation" if truth is quasi_steady else
-               "linearisation reduced to the model's states")
+    against = ("linearisation reduced to the model's states" if reduced else
+               "quasi-steady linearisation")
     text = (f"<p>Each identified derivative against the truth model's {against}, "
             f"the error in units of the estimate's own one-sigma bound, the one "
             f"that does not count a repeatable misfit as noise (frequency domain: from the "
