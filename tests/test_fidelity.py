@@ -112,3 +112,61 @@ def test_frequency_domain_is_judged_on_the_random_error_bound_with_the_reason():
     text = format_scoreboard(board)
     assert "random_error" in text and MISFIT_REASON in text
     assert "frequency_domain: Z_w: " + MISFIT_REASON in text
+
+
+# --- Quasi-steady equivalents of a higher-order model ----------------------------------------
+
+FLAP = {"states": ["p", "phi", "b1"], "inputs": ["lat"], "outputs": ["p", "phi"],
+        "A": {"L_p": -1.5, "L_b1": 150.0, "b1,b1": -14.0, "phi,p": {"value": 1.0, "free": False},
+              "b1,p": {"value": -1.0, "free": False}},
+        "B": {"L_lat": 0.5, "b1,lat": 12.0}}
+RIGID = {"states": ["p", "phi"], "inputs": ["lat"], "outputs": ["p", "phi"],
+         "A": {"L_p": -10.0, "phi,p": {"value": 1.0, "free": False}}, "B": {"L_lat": 10.0}}
+
+
+def test_quasi_steady_equivalents_of_a_flapping_model_and_their_bounds():
+    """Roll with first-order flapping, b1' = A_bb b1 - p + B_b lat, residualised: the
+    equivalents are L_p + L_b1 / A_bb and L_lat - L_b1 B_b / A_bb (b1 = (p - B_b lat) / A_bb),
+    and their bounds the first-order propagation with the analytic gradients."""
+    from sysid.assess.comparison import quasi_steady_equivalents
+    from sysid.models import structure_from_dict
+
+    hybrid = structure_from_dict(FLAP, source="flap")
+    theta = np.array([-1.2, 160.0, -12.5, 0.3, 11.0])
+    names = list(hybrid.free_names)
+    assert names == ["L_p", "L_b1", "A[b1,b1]", "L_lat", "B[b1,lat]"]
+    Lp, Lb, Abb, Llat, Bb = theta
+    sigma = np.array([0.05, 4.0, 0.6, 0.02, 0.5])
+    R = np.eye(5)
+    R[1, 2] = R[2, 1] = 0.8      # flapping spring and time constant correlated, as in fits
+    R[0, 1] = R[1, 0] = -0.3
+    m = hybrid.to_dataset(theta)
+    at = [list(m.parameter.values).index(n) for n in names]  # fixed entries are parameters too
+
+    def over_all(v):
+        full = np.full(m.sizes["parameter"], np.nan)
+        full[at] = v
+        return ("parameter", full)
+
+    m["cramer_rao"] = over_all(sigma)
+    m["cramer_rao_corrected"] = over_all(2 * sigma)
+    corr = np.full((m.sizes["parameter"],) * 2, np.nan)
+    corr[np.ix_(at, at)] = R
+    m["correlation"] = (("parameter", "parameter_j"), corr)
+    rigid = structure_from_dict(RIGID, source="rigid").to_dataset()
+    eq = quasi_steady_equivalents(m, rigid)
+    assert list(eq.parameter.values) == ["L_p", "L_lat"]
+    assert eq.attrs["residualized"] == "b1"
+    np.testing.assert_allclose(eq["value"].values, [Lp + Lb / Abb, Llat - Lb * Bb / Abb],
+                               rtol=1e-12)
+    G = np.array([[1.0, 1 / Abb, -Lb / Abb ** 2, 0.0, 0.0],
+                  [0.0, -Bb / Abb, Lb * Bb / Abb ** 2, 1.0, -Lb / Abb]])
+    for name, s in (("cramer_rao", sigma), ("cramer_rao_corrected", 2 * sigma)):
+        cov = G @ (np.outer(s, s) * R) @ G.T
+        np.testing.assert_allclose(eq[name].values, np.sqrt(np.diag(cov)), rtol=1e-6)
+    assert "cramer_rao_total" not in eq  # only the bounds the model has
+    # a bound the model could not give (NaN) leaves the equivalents that depend on it NaN
+    m["cramer_rao"] = over_all(np.array([0.05, 4.0, 0.6, 0.02, np.nan]))
+    eq = quasi_steady_equivalents(m, rigid, names=["L_p", "L_lat"])
+    assert np.isfinite(eq["cramer_rao"].sel(parameter="L_p")) and np.isnan(
+        eq["cramer_rao"].sel(parameter="L_lat"))

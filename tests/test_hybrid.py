@@ -101,7 +101,7 @@ def test_hybrid_truth_reduces_to_the_quasi_steady_linearisation(hover_lin, hover
 
 
 
-def test_report_scoreboard_judges_a_hybrid_against_the_truth_for_its_structure(
+def test_a_hybrid_is_judged_against_its_structure_s_truth_and_as_quasi_steady_equivalents(
         hover_lin, hover_trim, tmp_path):
     """The report's fidelity scoreboard compares a flapping model with the truth reduced to
     its structure (as the derivative table and `sysid compare` do), not with the quasi-steady
@@ -132,6 +132,13 @@ def test_report_scoreboard_judges_a_hybrid_against_the_truth_for_its_structure(
     assert f"frequency_domain: 0 of {n} flagged" in html, html[:2000]
     assert 'class="fail"' not in html
     assert "linearisation reduced to the model's states" in html
+    from sysid.report.sections import section_derivatives
+
+    html = section_derivatives(Context(tree, tmp_path, Progress(quiet=True), MUAD, None))
+    assert "extra states (a1, b1, theta_1c, theta_1s) residualised" in html
+    table = html[html.index('id="table-derivatives-equivalent"'):]
+    # one row per equivalent: the hybrid has Z_w, Z_col, N_r, N_ped as parameters itself
+    assert table.count("<tr>") == 1 + len(("L_p", "M_q", "L_lat", "M_lon"))
     # the one rule behind it (also the batch's truth column): a quasi-steady model gets the
     # quasi-steady linearisation, a tree without one no truth
     from sysid.assess.comparison import truth_for_model
@@ -142,6 +149,28 @@ def test_report_scoreboard_judges_a_hybrid_against_the_truth_for_its_structure(
     assert set(map(str, truth_for_model(tree, hover_lin.quasi_steady).parameter.values)) == \
         set(map(str, hover_lin.quasi_steady.parameter.values))
     assert truth_for_model(xr.DataTree.from_dict({"/models/x": model}), model) is None
+    # the hybrid truth's quasi-steady equivalents are the quasi-steady linearisation's values
+    from sysid.assess.comparison import DOMINANT, quasi_steady_equivalents
+
+    eq = quasi_steady_equivalents(model, hover_lin.quasi_steady, names=DOMINANT)
+    assert set(map(str, eq.parameter.values)) == set(DOMINANT)
+    for name in DOMINANT:
+        assert float(eq["value"].sel(parameter=name)) == pytest.approx(qs[name], rel=1e-6), name
+    assert np.all(eq["cramer_rao"].values > 0)  # propagated from the model's 5 % bounds
+    # ... and a batch condition of a hybrid study reports them where the model has none,
+    # against the quasi-steady truth, and its own parameters against the structure's truth
+    from sysid.data.netcdf import write_campaign
+    from sysid.pipeline.batch import condition_summary
+
+    write_campaign(tree, tmp_path / "campaign.nc")
+    summary = condition_summary(tmp_path)
+    row = summary.sel(model="frequency_domain")
+    for name in DOMINANT:
+        assert float(row["value"].sel(parameter=name)) == pytest.approx(
+            float(summary["truth"].sel(parameter=name)), rel=1e-6), name
+    assert float(summary["truth"].sel(parameter="L_p")) == pytest.approx(qs["L_p"])
+    assert float(summary["truth"].sel(parameter="L_v")) == pytest.approx(values["L_v"])
+    assert np.isfinite(row["cramer_rao"].sel(parameter=list(DOMINANT))).all()
 
 
 # --- One parameter on several entries (the shared flapping time constant) -------------------

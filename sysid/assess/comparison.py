@@ -23,7 +23,7 @@ from sysid.core.errors import InputDataError
 from sysid.core.guidelines import BIAS_BOUNDS_MAX
 from sysid.core.util import atomic_path
 from sysid.data.campaign import CampaignData
-from sysid.models import model_from_dataset, parameter_values
+from sysid.models import model_from_dataset, parameter_values, residualize_model
 from sysid.truth.linearize import truth_for_structure
 
 #: The derivatives that dominate the hover dynamics (damping and on-axis control power).
@@ -245,6 +245,113 @@ def truth_for_model(tree: xr.DataTree, model: xr.Dataset) -> xr.Dataset | None:
                                    model_from_dataset(model)[0])
     except (ValueError, KeyError, InputDataError):  # e.g. outputs the FMU does not have
         return lin
+
+
+#: The bounds :func:`quasi_steady_equivalents` carries over (those a model has).
+EQUIVALENT_BOUNDS = ("cramer_rao", "cramer_rao_corrected", "cramer_rao_noise",
+                     "cramer_rao_total")
+
+
+def quasi_steady_equivalents(model: xr.Dataset, quasi_steady: xr.Dataset,
+                             names: Sequence[str] | None = None) -> xr.Dataset:
+    """The quasi-steady derivatives a higher-order model implies, with propagated bounds.
+
+    The model's extra states (e.g. flapping ``a1, b1``) are residualised
+    (:func:`sysid.models.residualize_model`, ``z' = 0``) onto the states of ``quasi_steady``
+    (a model Dataset, e.g. the truth's ``/linearization``), and each of its parameters is read
+    as that structure reads it (the residualised entry minus the structure's fixed part,
+    e.g. the kinematics). With ``f(theta)`` that map and ``G = df/dtheta`` (central
+    differences), each bound ``sigma`` of :data:`EQUIVALENT_BOUNDS` the model has is carried
+    over as
+
+        sigma_eq = sqrt(diag(G D R D G^T)),     D = diag(sigma),  R = correlation
+
+    (first-order propagation; the correlation is the plain Cramer-Rao one, the calibrated
+    bounds rescale its variances). Why: a hybrid model's L_p, M_q, L_lat, M_lon are not its
+    parameters, yet they are what a 6-DoF model, the paper's table and a Monte Carlo
+    calibration compare.
+
+    Parameters
+    ----------
+    model : xr.Dataset
+        Identified model (``value``, ``free``, ``correlation`` and its bounds) with states
+        ``quasi_steady``'s and more.
+    quasi_steady : xr.Dataset
+        Model Dataset whose parameters name the equivalents.
+    names : sequence of str, optional
+        The equivalents wanted (default every A/B parameter of ``quasi_steady``).
+
+    Returns
+    -------
+    xr.Dataset
+        Over ``parameter``: ``value`` and the bounds (absolute); attribute ``residualized``.
+
+    Examples
+    --------
+    >>> eq = quasi_steady_equivalents(data.models()["time_domain"], data.quasi_steady(),
+    ...                               names=DOMINANT)                   # doctest: +SKIP
+    """
+    target, _ = model_from_dataset(quasi_steady)
+    states = list(target.states)
+    wanted = [k for k in target.free_index
+              if target.parameters[k].matrix in ("A", "B")
+              and (names is None or target.parameters[k].name in names)]
+    out_names = [target.parameters[k].name for k in wanted]
+    at = {k: j for j, k in enumerate(target.free_index)}
+    structure, theta = model_from_dataset(model)
+
+    def f(th):
+        reduced = residualize_model(structure.to_dataset(th), states)
+        return target.values_from_model(reduced)[[at[k] for k in wanted]]
+
+    value = f(theta)
+    data = {"value": ("parameter", value)}
+    free = list(structure.free_index)
+    have = [b for b in EQUIVALENT_BOUNDS if b in model]
+    if free and have and "correlation" in model:
+        G = np.zeros((len(wanted), len(free)))
+        for j, k in enumerate(free):
+            h = 1e-6 * max(1.0, abs(theta[j]))
+            up, down = theta.copy(), theta.copy()
+            up[j] += h
+            down[j] -= h
+            G[:, j] = (f(up) - f(down)) / (2 * h)
+        idx = [int(np.flatnonzero(model["parameter"].values == structure.parameters[k].name)[0])
+               for k in free]
+        R = np.nan_to_num(model["correlation"].values[np.ix_(idx, idx)])
+        np.fill_diagonal(R, 1.0)
+        for b in have:
+            sigma = model[b].values[idx].astype(float)
+            S = np.where(np.isfinite(sigma), sigma, 0.0)
+            cov = G @ (S[:, None] * R * S[None, :]) @ G.T
+            bound = np.sqrt(np.maximum(np.diag(cov), 0.0))
+            bound[np.any((G != 0) & ~np.isfinite(sigma)[None, :], axis=1)] = np.nan
+            data[b] = ("parameter", bound)
+    return xr.Dataset(data, coords={"parameter": out_names},
+                      attrs={"residualized": ",".join(s for s in structure.states
+                                                      if s not in states)})
+
+
+def dominant_equivalents(tree: xr.DataTree, models: Mapping[str, xr.Dataset]
+                         ) -> dict[str, xr.Dataset]:
+    """Per model with states the quasi-steady ``/linearization`` lacks (flapping), the
+    :func:`quasi_steady_equivalents` of the :data:`DOMINANT` derivatives it does not have as
+    parameters; empty for quasi-steady models or without a linearisation."""
+    if "linearization" not in tree.children:
+        return {}
+    lin = tree["linearization"].to_dataset(inherit=False)
+    if "A" not in lin:
+        return {}
+    rigid = set(map(str, lin["A"].state.values))
+    out = {}
+    for method, model in models.items():
+        if ("A" not in model or "parameter" not in model.dims
+                or set(map(str, model["A"].state.values)) <= rigid):
+            continue
+        missing = [n for n in DOMINANT if n not in model.parameter.values]
+        if missing:
+            out[method] = quasi_steady_equivalents(model, lin, names=missing)
+    return out
 
 
 def compare_models(data: CampaignData) -> xr.Dataset:

@@ -86,7 +86,7 @@ from typing import Iterable, Sequence
 import numpy as np
 import xarray as xr
 
-from sysid.assess.comparison import DOMINANT, truth_for_model
+from sysid.assess.comparison import DOMINANT, dominant_equivalents, truth_for_model
 from sysid.core import errors
 from sysid.core.errors import InputDataError, SysidError
 from sysid.core.units import CONTROLS
@@ -406,6 +406,30 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
                     table[i, j] = float(model[variable].values[k])
         j_ave[i] = float(model.attrs.get("J_ave", np.nan))
     truth_values = parameter_values(truth, names)
+    # a higher-order model (flapping) has no L_p, M_q, L_lat, M_lon of its own: its
+    # quasi-steady equivalents stand in for them, against the quasi-steady truth
+    equivalents = dominant_equivalents(tree, models)
+    if equivalents:
+        extra = [n for n in DOMINANT if n not in names and any(
+            n in eq.parameter.values for eq in equivalents.values())]
+        names += extra
+        pad = np.full((len(methods), len(extra)), np.nan)
+        value = np.hstack([value, pad])
+        bounds = {k: np.hstack([v, pad]) for k, v in bounds.items()}
+        truth_values = np.concatenate([truth_values, parameter_values(
+            tree["linearization"].to_dataset(inherit=False), extra)])
+        for i, method in enumerate(methods):
+            eq = equivalents.get(method)
+            for j, name in enumerate(names):
+                if eq is None or name not in extra or name not in eq.parameter.values:
+                    continue
+                value[i, j] = float(eq["value"].sel(parameter=name))
+                for variable, table in bounds.items():
+                    if variable in eq:
+                        table[i, j] = float(eq[variable].sel(parameter=name))
+                if "cramer_rao" in eq:
+                    bounds["cramer_rao_percent"][i, j] = 100 * abs(
+                        float(eq["cramer_rao"].sel(parameter=name)) / value[i, j])
     j_rms = np.full(len(methods), np.nan)
     try:
         verification = [child.to_dataset() for child in tree["verification"].children.values()]

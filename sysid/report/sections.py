@@ -28,7 +28,8 @@ import sysid.report.read as read
 from sysid import __version__
 from sysid.assess.envelopes import check_envelope, mismatch
 from sysid.core.guidelines import BIAS_BOUNDS_MAX, GUIDELINES, UNDETERMINED_PERCENT
-from sysid.assess.comparison import BIAS_MEANING, fidelity_scoreboard, truth_for_model
+from sysid.assess.comparison import (BIAS_MEANING, DOMINANT, dominant_equivalents,
+                                     fidelity_scoreboard, truth_for_model)
 from sysid.identify.statistics import (format_undetermined, guideline_mark,
                                       undetermined_parameters)
 from sysid.spectral.response import NO_TRANSIENT_GROUP
@@ -569,7 +570,46 @@ def section_derivatives(ctx: Context) -> str:
         parts.append(html_table(header, rows, "numeric derivatives", raw=True,
                                 table_id=anchor) if rows
                      else not_available(f"no parameters for {title}"))
+    parts.append(_equivalents_table(ctx, models))
     return "".join(parts)
+
+
+def _equivalents_table(ctx: Context, models: dict[str, xr.Dataset]) -> str:
+    """The dominant derivatives a higher-order model implies (its extra states
+    residualised), beside the truth's quasi-steady values; empty for quasi-steady models
+    (:func:`sysid.assess.comparison.dominant_equivalents`)."""
+    equivalents = dominant_equivalents(ctx.tree, models)
+    if not equivalents:
+        return ""
+    lin = read.linearization(ctx.tree)
+    names = [n for n in DOMINANT if any(n in eq.parameter.values for eq in equivalents.values())]
+    header = ["derivative", "truth"]
+    for m, eq in equivalents.items():
+        header += [f"{m}: value", f"{m}: CR %"] + (
+            [f"{m}: CRc %"] if "cramer_rao_corrected" in eq else [])
+    rows = []
+    for nm in names:
+        row = [nm, num(_truth_value(lin, nm, lin))]
+        for eq in equivalents.values():
+            cells = [DASH, DASH] + ([DASH] if "cramer_rao_corrected" in eq else [])
+            if nm in eq.parameter.values:
+                v = float(eq["value"].sel(parameter=nm))
+                cells = [num(v)] + [num(100 * float(eq[b].sel(parameter=nm)) / abs(v), ".3g")
+                                    for b in ("cramer_rao", "cramer_rao_corrected")
+                                    if b in eq]
+            row += cells
+        rows.append(row)
+    anchor = "table-derivatives-equivalent"
+    residualized = ", ".join(sorted({s for eq in equivalents.values()
+                                     for s in eq.attrs["residualized"].split(",") if s}))
+    ctx.anchors[anchor] = "Quasi-steady equivalents"
+    return (f'<h3 id="{anchor}-title">Quasi-steady equivalents</h3>'
+            f"<p>The dominant derivatives the model implies with its extra states "
+            f"({esc(residualized)}) residualised, as a 6-DoF model would report them "
+            f"(docs/methods.md, \"Model structure\"); bounds propagated to first order "
+            f"from the parameters' bounds and correlations. Truth: its quasi-steady "
+            f"linearisation.</p>"
+            + html_table(header, rows, "numeric derivatives", raw=True, table_id=anchor))
 
 
 # -- Fidelity scoreboard ---------------------------------------------------------------------
