@@ -139,8 +139,8 @@ SCREEN_PASSES = 2
 #: The first relaxation pass of a fit from scratch solves at the start's innovation
 #: covariance, which the next pass replaces: it stops where less than this (L units, 100
 #: COST_SETTLED) of further decrease is predicted instead of SOLVE_SETTLED. On eight hover
-#: campaigns the first fit took 40 % less CPU and ended within 1.5 of the same L, or lower
-#: (docs/notes/2026-11-27-filter-error-first-pass.md).
+#: campaigns the first fit took 36 % less CPU and ended at the same L to 0.04 on five, 0.4
+#: and 1.5 higher on two, 5.9 lower on one (docs/notes/2026-11-27-filter-error-first-pass.md).
 FIRST_PASS_SETTLED = 1.0
 #: Whitened residual returned for every sample of a trial model whose Riccati equation has
 #: no stabilising solution (the solver then rejects the step).

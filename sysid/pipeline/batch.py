@@ -1003,7 +1003,7 @@ def calibration(ds: xr.Dataset, parameters: Sequence[str] = DOMINANT) -> xr.Data
              "long_name": "scatter / mean bound", "goal": list(CALIBRATION_GOAL)}),
          "calibration_mean": (dims, out["mean"], {"long_name": "mean estimate over seeds"}),
          "calibration_truth": (dims, out["truth"], {
-             "long_name": "truth model's linearisation as in truth (mean over seeds)"}),
+             "long_name": "the truth column's value (mean over seeds)"}),
          "calibration_n_seeds": (dims, count, {"long_name": "seeds with an estimate"})},
         coords={"calibration_kt": ("calibration_kt", speeds, {"units": "kt"}),
                 "dominant": params, "bound": bounds})
