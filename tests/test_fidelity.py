@@ -11,8 +11,10 @@ import numpy as np
 import xarray as xr
 
 from sysid.assess.comparison import (BEYOND_MISFIT_REASON, BIAS_MEANING, BIAS_REASONS,
-                                     MISFIT_REASON, fidelity_scoreboard, format_scoreboard)
+                                     MISFIT_REASON, fidelity_scoreboard, format_scoreboard,
+                                     quasi_steady_equivalents)
 from sysid.core.guidelines import BIAS_BOUNDS_MAX
+from sysid.models import structure_from_dict
 
 NAMES = ["Z_w", "M_q", "tau_M_lon"]
 TRUTH = xr.Dataset({"value": ("parameter", [-0.30, -3.0])},
@@ -128,9 +130,6 @@ def test_quasi_steady_equivalents_of_a_flapping_model_and_their_bounds():
     """Roll with first-order flapping, b1' = A_bb b1 - p + B_b lat, residualised: the
     equivalents are L_p + L_b1 / A_bb and L_lat - L_b1 B_b / A_bb (b1 = (p - B_b lat) / A_bb),
     and their bounds the first-order propagation with the analytic gradients."""
-    from sysid.assess.comparison import quasi_steady_equivalents
-    from sysid.models import structure_from_dict
-
     hybrid = structure_from_dict(FLAP, source="flap")
     theta = np.array([-1.2, 160.0, -12.5, 0.3, 11.0])
     names = list(hybrid.free_names)

@@ -13,7 +13,14 @@ import pytest
 import xarray as xr
 
 from sysid.assess.metrics import J_RMS_GUIDELINE
+from sysid.assess.comparison import DOMINANT, quasi_steady_equivalents, truth_for_model
+from sysid.assess.envelopes import MUAD
 from sysid.assess.stages import verify_models
+from sysid.core.util import Progress
+from sysid.data.netcdf import write_campaign
+from sysid.pipeline.batch import condition_summary
+from sysid.report.figures import Context
+from sysid.report.sections import section_derivatives, section_fidelity
 from sysid.assess.verification import verify
 from sysid.core.kinematics import rigid_body_terms
 from sysid.core.units import CONTROLS, STATES_6DOF
@@ -100,18 +107,13 @@ def test_hybrid_truth_reduces_to_the_quasi_steady_linearisation(hover_lin, hover
         assert np.min(np.abs(ev_f - e)) < 0.03 * e, e
 
 
-
 def test_a_hybrid_is_judged_against_its_structure_s_truth_and_as_quasi_steady_equivalents(
         hover_lin, hover_trim, tmp_path):
     """The report's fidelity scoreboard compares a flapping model with the truth reduced to
     its structure (as the derivative table and `sysid compare` do), not with the quasi-steady
     linearisation, whose speed derivatives differ from the hybrid's (the flapping
-    residualised into them: L_v -6.69 against -0.39). The model is the structure's truth itself with 5 % bounds: every error 0."""
-    from sysid.core.util import Progress
-    from sysid.report.figures import Context
-    from sysid.report.sections import section_fidelity
-    from sysid.assess.envelopes import MUAD
-
+    residualised into them: L_v -6.69 against -0.39). The model is the structure's truth
+    itself with 5 % bounds: every error 0."""
     st = load_structure("hover_hybrid", trim=hover_trim.channel_values())
     truth = truth_for_structure(hover_lin.full, st)
     model = truth.copy()
@@ -132,8 +134,6 @@ def test_a_hybrid_is_judged_against_its_structure_s_truth_and_as_quasi_steady_eq
     assert f"frequency_domain: 0 of {n} flagged" in html, html[:2000]
     assert 'class="fail"' not in html
     assert "linearisation reduced to the model's states" in html
-    from sysid.report.sections import section_derivatives
-
     html = section_derivatives(Context(tree, tmp_path, Progress(quiet=True), MUAD, None))
     assert "extra states (a1, b1, theta_1c, theta_1s) residualised" in html
     table = html[html.index('id="table-derivatives-equivalent"'):]
@@ -141,8 +141,6 @@ def test_a_hybrid_is_judged_against_its_structure_s_truth_and_as_quasi_steady_eq
     assert table.count("<tr>") == 1 + len(("L_p", "M_q", "L_lat", "M_lon"))
     # the one rule behind it (also the batch's truth column): a quasi-steady model gets the
     # quasi-steady linearisation, a tree without one no truth
-    from sysid.assess.comparison import truth_for_model
-
     np.testing.assert_allclose(truth_for_model(tree, model)["value"].values,
                                truth["value"].values, rtol=1e-9, atol=1e-12)
     assert truth_for_model(tree, hover_lin.quasi_steady) is not None
@@ -150,8 +148,6 @@ def test_a_hybrid_is_judged_against_its_structure_s_truth_and_as_quasi_steady_eq
         set(map(str, hover_lin.quasi_steady.parameter.values))
     assert truth_for_model(xr.DataTree.from_dict({"/models/x": model}), model) is None
     # the hybrid truth's quasi-steady equivalents are the quasi-steady linearisation's values
-    from sysid.assess.comparison import DOMINANT, quasi_steady_equivalents
-
     eq = quasi_steady_equivalents(model, hover_lin.quasi_steady, names=DOMINANT)
     assert set(map(str, eq.parameter.values)) == set(DOMINANT)
     for name in DOMINANT:
@@ -159,9 +155,6 @@ def test_a_hybrid_is_judged_against_its_structure_s_truth_and_as_quasi_steady_eq
     assert np.all(eq["cramer_rao"].values > 0)  # propagated from the model's 5 % bounds
     # ... and a batch condition of a hybrid study reports them where the model has none,
     # against the quasi-steady truth, and its own parameters against the structure's truth
-    from sysid.data.netcdf import write_campaign
-    from sysid.pipeline.batch import condition_summary
-
     write_campaign(tree, tmp_path / "campaign.nc")
     summary = condition_summary(tmp_path)
     row = summary.sel(model="frequency_domain")
