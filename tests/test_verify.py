@@ -14,6 +14,8 @@ from known_systems import (PLAN_2311, PLAN_3211, TRIM, add_noise, multistep_reco
 
 from sysid.core.errors import IdentificationError, InputDataError
 from sysid.assess.metrics import J_RMS_GUIDELINE, TIC_GUIDELINE
+from sysid.assess.stages import TRUTH_SOURCE, verify_models
+from sysid.data.campaign import CampaignData
 from sysid.assess.verification import merge_verifications, verification_table, verify, verify_maneuvers
 
 OUTPUT_BIAS = {"q": 0.7, "u": -0.3, "psi": 1.2}
@@ -200,3 +202,42 @@ def test_verification_group_round_trips_through_netcdf(tmp_path, truth_model, of
     io.update_campaign(path, "verification/2311_lon_1", ds)
     back = io.read_campaign(path)["verification/2311_lon_1"].to_dataset()
     xr.testing.assert_allclose(back[["q", "tic", "j_rms"]], ds[["q", "tic", "j_rms"]])
+
+
+def _campaign(records, models: dict, linearization=None) -> CampaignData:
+    groups = {f"maneuvers/{r.attrs['maneuver']}": xr.DataTree(r) for r in records}
+    groups.update({f"models/{m}": xr.DataTree(ds) for m, ds in models.items()})
+    if linearization is not None:
+        groups["linearization"] = xr.DataTree(linearization)
+    return CampaignData(xr.DataTree.from_dict(groups), source="known system")
+
+
+def test_a_simulation_campaign_verifies_the_truth_s_own_model_as_the_floor(offset_records):
+    """The truth linearisation is verified beside the models: on records the truth itself
+    produced (noise-free, offset biases and rigging) it reaches J_rms 0, a model 20 % off
+    does not; one source per structure; none without a linearisation (flight data)."""
+    st = truth_structure()
+    truth = st.to_dataset(attrs={"method": "linearization", "structure": st.name})
+    wrong = st.to_dataset(st.theta0 * 0.8, attrs={"method": "frequency_domain",
+                                                  "structure": st.name})
+    checked = verify_models(_campaign(offset_records, {"frequency_domain": wrong}, truth),
+                            maneuvers="2311_*")
+    assert len(checked) == len(offset_records)
+    for ds in checked.values():
+        assert list(ds.source.values) == ["truth", "frequency_domain", TRUTH_SOURCE]
+        assert float(ds["j_rms"].sel(source=TRUTH_SOURCE)) < 1e-6
+        assert float(ds["j_rms"].sel(source="frequency_domain")) > 0.05
+    # two structures: one truth each, named by structure
+    other = wrong.assign_attrs(method="time_domain", structure="other")
+    two = verify_models(_campaign(offset_records[:1], {"frequency_domain": wrong,
+                                                       "time_domain": other}, truth))
+    (ds,) = two.values()
+    assert sorted(map(str, ds.source.values)) == sorted(
+        ["truth", "frequency_domain", "time_domain", f"{TRUTH_SOURCE}_{st.name}",
+         f"{TRUTH_SOURCE}_other"])
+    # flight data (no linearisation), or asked not to: the models only
+    for data, kw in ((_campaign(offset_records[:1], {"frequency_domain": wrong}), {}),
+                     (_campaign(offset_records[:1], {"frequency_domain": wrong}, truth),
+                      {"truth": False})):
+        (ds,) = verify_models(data, **kw).values()
+        assert list(ds.source.values) == ["truth", "frequency_domain"]

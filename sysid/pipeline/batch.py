@@ -66,7 +66,10 @@ The ``batch.nc`` Dataset (dims ``condition``, ``model`` (the identification meth
 - ``truth`` (condition, parameter): the truth model's quasi-steady linearisation at the
   condition, for a higher-order structure (flapping) the linearisation reduced to its states
   (:func:`sysid.assess.comparison.truth_for_model`); NaN for delays;
-- ``J_ave`` (condition, model); ``j_rms`` (condition, model): mean verification J_rms.
+- ``J_ave`` (condition, model); ``j_rms`` (condition, model): mean verification J_rms;
+  ``j_rms_truth`` (condition): the same of the truth linearisation reduced to the structure
+  (:func:`sysid.assess.stages.truth_references`), the floor the data's turbulence and noise
+  set.
 """
 
 from __future__ import annotations
@@ -87,6 +90,7 @@ import numpy as np
 import xarray as xr
 
 from sysid.assess.comparison import DOMINANT, dominant_equivalents, truth_for_model
+from sysid.assess.stages import TRUTH_SOURCE
 from sysid.core import errors
 from sysid.core.errors import InputDataError, SysidError
 from sysid.core.units import CONTROLS
@@ -440,6 +444,8 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
                   if "j_rms" in v and method in v["j_rms"].source.values]
         if values:
             j_rms[i] = float(np.mean(values))
+    floor = [float(v["j_rms"].sel(source=TRUTH_SOURCE)) for v in verification
+             if "j_rms" in v and TRUTH_SOURCE in v["j_rms"].source.values]
     dims = ("model", "parameter")
     return xr.Dataset(
         {"value": (dims, value),
@@ -449,7 +455,10 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
                                  "a higher-order structure's states)"}),
          "J_ave": (("model",), j_ave, {"long_name": "average frequency-domain cost"}),
          "j_rms": (("model",), j_rms,
-                   {"long_name": "mean J_rms over the verification manoeuvres"})},
+                   {"long_name": "mean J_rms over the verification manoeuvres"}),
+         "j_rms_truth": ((), float(np.mean(floor)) if floor else np.nan,
+                         {"long_name": "mean J_rms of the truth linearisation (reduced to "
+                                       "the structure) over the same manoeuvres"})},
         coords={"model": methods, "parameter": names})
 
 
