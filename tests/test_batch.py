@@ -264,6 +264,9 @@ def test_batch_on_local_cluster_survives_a_failing_condition(tmp_path, truth_fmu
             assert float(row["value"].sel(parameter=p, model="time_domain")) < 0
         assert float(row["truth"].sel(parameter="Z_col")) < 0
         assert float(row["value"].sel(parameter="Z_col", model="time_domain")) < 0
+        # the truth's own linear model verified on the same 2311s: a floor, finite and
+        # (light turbulence, sensor noise) above zero
+        assert 0.0 < float(row["j_rms_truth"]) < float("inf")
     # Resume: a second run recomputes nothing that finished (only the failed condition).
     marker = json.loads((tmp_path / done[0].name / "condition.json").read_text())
     assert marker["status"] == "ok"
