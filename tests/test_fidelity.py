@@ -10,10 +10,15 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
+from test_identify_frequency import TRUE_DELAYS, analytic_response, truth_structure, truth_values
+
 from sysid.assess.comparison import (BEYOND_MISFIT_REASON, BIAS_MEANING, BIAS_REASONS,
-                                     MISFIT_REASON, fidelity_scoreboard, format_scoreboard,
-                                     quasi_steady_equivalents)
+                                     DATA_REASON, MISFIT_REASON, STRUCTURE_REASON,
+                                     compare_models, fidelity_scoreboard, format_scoreboard,
+                                     quasi_steady_equivalents, truth_in_band)
 from sysid.core.guidelines import BIAS_BOUNDS_MAX
+from sysid.data.campaign import CampaignData
+from sysid.identify.frequency_domain import identify_frequency_domain
 from sysid.models import structure_from_dict
 
 NAMES = ["Z_w", "M_q", "tau_M_lon"]
@@ -114,6 +119,58 @@ def test_frequency_domain_is_judged_on_the_random_error_bound_with_the_reason():
     text = format_scoreboard(board)
     assert "random_error" in text and MISFIT_REASON in text
     assert "frequency_domain: Z_w: " + MISFIT_REASON in text
+
+
+def test_a_flag_s_reason_comes_from_the_truth_fitted_in_the_same_band():
+    """With the truth fitted in the estimate's band known, a flagged estimate within 3 bounds
+    of it is off by the structure's error, beyond them by the data's."""
+    fd = model("frequency_domain", [-0.325, -3.9, 0.1], [0.005, 0.1, 0.01])
+    names = {"parameter": NAMES, "model": ["frequency_domain"]}
+    # Z_w 5 bounds, M_q 9 bounds off the truth: both flagged
+    near = xr.DataArray([[-0.33], [-3.0], [np.nan]], dims=("parameter", "model"), coords=names)
+    board = fidelity_scoreboard({"frequency_domain": fd}, TRUTH, in_band=near)
+    cell = board.sel(model="frequency_domain")
+    np.testing.assert_allclose(cell["band_error_in_bounds"].sel(parameter="Z_w"), 1.0)
+    np.testing.assert_allclose(cell["band_error_in_bounds"].sel(parameter="M_q"), 9.0)
+    assert str(cell["bias_reason"].sel(parameter="Z_w").values) == STRUCTURE_REASON
+    assert str(cell["bias_reason"].sel(parameter="M_q").values) == DATA_REASON
+    np.testing.assert_allclose(cell["truth_in_band"].sel(parameter="Z_w"), -0.33)
+    # without it, the residual-based reasons as before
+    plain = fidelity_scoreboard({"frequency_domain": fd}, TRUTH)
+    assert np.isnan(plain["truth_in_band"]).all()
+    assert str(plain["bias_reason"].sel(model="frequency_domain", parameter="Z_w").values) \
+        == BIAS_MEANING
+
+
+def test_truth_in_band_recovers_a_truth_the_structure_contains():
+    """Known 6-DoF system whose structure contains the truth: the estimate from noisy
+    responses is off by the noise, the structure fitted to the truth's exact responses at the
+    estimate's own points returns the truth (so the scoreboard's band error is the whole
+    error); for a time-domain model or without a linearisation there is none."""
+    st = truth_structure()
+    values = truth_values()
+    truth = st.to_dataset(attrs={"method": "linearization"})
+    measured = analytic_response(st, noise=0.05, seed=4)
+    estimate = identify_frequency_domain(measured, st, reduce=False).model
+    groups = {"frequency_response": xr.DataTree(measured),
+              "models/frequency_domain": xr.DataTree(estimate)}
+    without = CampaignData(xr.DataTree.from_dict(groups), source="no truth")
+    data = CampaignData(xr.DataTree.from_dict({**groups, "linearization": xr.DataTree(truth)}),
+                        source="known system")
+    band = truth_in_band(data, estimate)
+    errors = {n: abs(float(band["value"].sel(parameter=n)) / values[n] - 1) for n in values
+              if n not in TRUE_DELAYS}
+    assert max(errors.values()) < 1e-4, errors
+    for name, tau in TRUE_DELAYS.items():
+        assert abs(float(band["value"].sel(parameter=name)) - tau) < 1e-4
+    off = max(abs(float(estimate["value"].sel(parameter=n)) / values[n] - 1) for n in errors)
+    assert off > 1e-3  # the noise did move the estimate
+    table = compare_models(data)
+    fd = table.sel(model="frequency_domain")
+    np.testing.assert_allclose(fd["band_error_in_bounds"], fd["error_in_bounds"], rtol=1e-3,
+                               atol=1e-3)
+    assert truth_in_band(without, estimate) is None
+    assert truth_in_band(data, estimate.assign_attrs(method="time_domain")) is None
 
 
 # --- Quasi-steady equivalents of a higher-order model ----------------------------------------

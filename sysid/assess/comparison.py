@@ -9,6 +9,12 @@ the truth in units of its own bound and flags the errors beyond
 :data:`~sysid.core.guidelines.BIAS_BOUNDS_MAX` bounds: a bias the noise cannot explain, i.e. a
 structure or data problem. :func:`compare_models` builds a campaign's ``/comparison`` group
 (the table and the scoreboard) from its ``/models`` and ``/linearization``.
+
+Against a reduced-order structure the truth's own parameters are ambiguous: the linearisation
+reduced to the structure's states is exact at low frequency, but a fit over a band weighs the
+whole band. :func:`truth_in_band` fits the structure to the truth's exact responses in the
+frequency-domain estimate's own band, points and weights, so that an error splits into the
+structure's part (``truth_in_band - truth``) and the data's (``estimate - truth_in_band``).
 """
 
 from __future__ import annotations
@@ -20,10 +26,12 @@ import numpy as np
 import xarray as xr
 
 from sysid.core.errors import InputDataError
-from sysid.core.guidelines import BIAS_BOUNDS_MAX
+from sysid.core.guidelines import BIAS_BOUNDS_MAX, COHERENCE_MIN
 from sysid.core.util import atomic_path
 from sysid.data.campaign import CampaignData
-from sysid.models import model_from_dataset, parameter_values, residualize_model
+from sysid.identify.frequency_domain import N_POINTS, identify_frequency_domain
+from sysid.models import (frequency_response, model_from_dataset, parameter_values,
+                          residualize_model)
 from sysid.truth.linearize import truth_for_structure
 
 #: The derivatives that dominate the hover dynamics (damping and on-axis control power).
@@ -103,6 +111,13 @@ MISFIT_REASON = ("bias beyond the noise bound, within the fit residuals: structu
 #: Frequency domain, flagged on the noise bound and beyond the residual-scaled bound too.
 BEYOND_MISFIT_REASON = ("bias beyond the noise bound and the fit residuals: a data, start "
                         "or structure problem")
+#: Flagged, and the structure fitted to the truth's exact responses in the same band, points
+#: and weights (:func:`truth_in_band`) lands within the threshold of the estimate.
+STRUCTURE_REASON = ("bias the truth's own responses share when fitted in the same band: the "
+                    "structure's error, not the data's")
+#: Flagged, and beyond the threshold of :func:`truth_in_band` too.
+DATA_REASON = ("bias beyond the noise bound also against the truth fitted in the same band: "
+               "the data (nonlinearity, turbulence, spectral estimates) or the start")
 
 
 #: The bound each method's errors are judged on where the model carries it (docs/methods.md,
@@ -150,7 +165,8 @@ def _reason(model: xr.Dataset, k: int, kind: str, error: float, threshold: float
 
 
 def fidelity_scoreboard(models: Mapping[str, xr.Dataset], truth: xr.Dataset | None = None, *,
-                        threshold: float = BIAS_BOUNDS_MAX) -> xr.Dataset:
+                        threshold: float = BIAS_BOUNDS_MAX,
+                        in_band: xr.DataArray | None = None) -> xr.Dataset:
     """Each identified parameter's error against the truth in units of its own bound.
 
     For every parameter free in any model and every model (method): the estimate, its bound
@@ -165,15 +181,19 @@ def fidelity_scoreboard(models: Mapping[str, xr.Dataset], truth: xr.Dataset | No
 
     A flagged estimate is biased beyond what the noise explains (:data:`BIAS_MEANING`);
     ``bias_reason`` says why (:data:`BIAS_REASONS`). NaN where a model does not estimate the
-    parameter or the truth has no value (delays).
+    parameter or the truth has no value (delays). ``in_band`` (parameter, model), the values
+    of :func:`truth_in_band` where known, gives ``band_error_in_bounds`` =
+    ``|value - in_band| / sigma`` and decides a flag's reason: :data:`STRUCTURE_REASON`
+    within the threshold, else :data:`DATA_REASON`.
 
     Returns a Dataset over ``parameter`` and ``model`` with ``value``, ``bound``,
     ``cramer_rao`` (the plain bound: CIFER convention or white noise, the one of the
     guidelines' CR % marks), ``bound_kind`` (``"selection"``, ``"random_error"``,
     ``"scaled"``, ``"cifer"``, ``"corrected"`` or ``"white"``), ``error``,
     ``error_in_bounds``, ``bias_flag``,
-    ``bias_reason`` (empty where not flagged) and ``truth`` (parameter); attribute
-    ``bias_bounds_max`` (the threshold).
+    ``bias_reason`` (empty where not flagged), ``truth`` (parameter), ``truth_in_band`` and
+    ``band_error_in_bounds`` (NaN without ``in_band``); attribute ``bias_bounds_max`` (the
+    threshold).
 
     Examples
     --------
@@ -195,9 +215,19 @@ def fidelity_scoreboard(models: Mapping[str, xr.Dataset], truth: xr.Dataset | No
     with np.errstate(divide="ignore", invalid="ignore"):
         z = np.where(bound > 0, np.abs(error.values) / bound, np.nan)   # no bound: no score
     flag = np.isfinite(z) & (z > threshold)
+    band = np.full(shape, np.nan)
+    if in_band is not None:
+        for i, name in enumerate(names):
+            for j, method in enumerate(methods):
+                if name in in_band.parameter.values and method in in_band.model.values:
+                    band[i, j] = float(in_band.sel(parameter=name, model=method))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        band_z = np.where(bound > 0, np.abs(table["value"].values - band) / bound, np.nan)
     for i, j, model, k in entries:
         if flag[i, j]:
-            reason[i, j] = _reason(model, k, kind[i, j], float(error.values[i, j]), threshold)
+            reason[i, j] = (_reason(model, k, kind[i, j], float(error.values[i, j]), threshold)
+                            if not np.isfinite(band_z[i, j]) else
+                            STRUCTURE_REASON if band_z[i, j] <= threshold else DATA_REASON)
     dims = ("parameter", "model")
     return xr.Dataset(
         {
@@ -219,6 +249,11 @@ def fidelity_scoreboard(models: Mapping[str, xr.Dataset], truth: xr.Dataset | No
             "bias_reason": (dims, reason.astype(str),
                             {"long_name": "why a flagged estimate is biased (empty: no flag)"}),
             "truth": table["truth"],
+            "truth_in_band": (dims, band, {"long_name": "the structure fitted to the truth's "
+                                                        "exact responses in the estimate's "
+                                                        "band, points and weights"}),
+            "band_error_in_bounds": (dims, band_z,
+                                     {"long_name": "|estimate - truth_in_band| / bound"}),
         },
         coords={"parameter": names, "model": methods},
         attrs={"long_name": "fidelity scoreboard: error against the truth in bounds",
@@ -245,6 +280,45 @@ def truth_for_model(tree: xr.DataTree, model: xr.Dataset) -> xr.Dataset | None:
                                    model_from_dataset(model)[0])
     except (ValueError, KeyError, InputDataError):  # e.g. outputs the FMU does not have
         return lin
+
+
+def truth_in_band(data: CampaignData, model: xr.Dataset) -> xr.Dataset | None:
+    """A frequency-domain model's structure fitted to the truth's exact responses in the
+    estimate's own band: the campaign's composite responses with ``H`` replaced by the truth
+    linearisation's (the full one where the campaign has it), so the same coherence and
+    random error select and weigh the same points; the estimate's pairs, coherence limit,
+    band and points per pair; started at the estimate, the parameters it removed held, no
+    reduction. ``model - truth_in_band`` is the data's part of an error (noise, turbulence,
+    nonlinearity, spectral estimates), ``truth_in_band - truth`` the structure's.
+
+    None for a model of another method, or without composite responses or a linearisation
+    with the responses' outputs and inputs (flight data).
+    """
+    if str(model.attrs.get("method", "")) != "frequency_domain" or "parameter" not in model.dims:
+        return None
+    fr = data.frequency_response()
+    tree = data.tree
+    name = ("linearization_full" if "linearization_full" in tree.children else
+            "linearization" if "linearization" in tree.children else None)
+    if fr is None or name is None:
+        return None
+    lin = tree[name].to_dataset(inherit=False)
+    outputs, inputs = list(map(str, fr.output.values)), list(map(str, fr.input.values))
+    if ("C" not in lin or not set(outputs) <= set(map(str, lin["C"].output.values))
+            or not set(inputs) <= set(map(str, lin["B"].input.values))):
+        return None
+    exact = frequency_response(lin, fr.frequency.values).sel(output=outputs, input=inputs)
+    responses = fr.assign(H=exact.transpose(*fr["H"].dims))
+    attrs = model.attrs
+    pairs = [tuple(p.split("/")) for p in str(attrs.get("pairs", "")).split(",") if p]
+    band = (float(attrs["fit_omega_min"]), float(attrs["fit_omega_max"])) if (
+        "fit_omega_min" in attrs and "fit_omega_max" in attrs) else None
+    structure = model_from_dataset(model)[0]
+    fit = identify_frequency_domain(
+        responses, structure, pairs=pairs or None, start=model, frequency_range=band,
+        coherence_min=float(attrs.get("coherence_min", COHERENCE_MIN)),
+        n_points=int(attrs.get("n_points_per_pair", N_POINTS)), reduce=False)
+    return fit.model.assign_attrs(method="truth_in_band", linearization=f"/{name}")
 
 
 #: The bounds :func:`quasi_steady_equivalents` carries over (those a model has).
@@ -358,15 +432,27 @@ def compare_models(data: CampaignData) -> xr.Dataset:
     """The ``/comparison`` Dataset of a campaign: :func:`derivative_table` of every
     ``/models/<method>`` beside the truth linearisation ``/linearization`` (when present),
     with the :func:`fidelity_scoreboard` variables ``bound``, ``bound_kind``,
-    ``error_in_bounds``, ``bias_flag`` and ``bias_reason``."""
+    ``error_in_bounds``, ``bias_flag``, ``bias_reason`` and, for a frequency-domain model,
+    ``truth_in_band`` (:func:`truth_in_band`) and ``band_error_in_bounds``."""
     models = data.models()
     if not models:
         raise InputDataError(f"{data.source} has no identified models (/models/<method>); "
                              "run 'sysid identify' and/or 'sysid identify-time' first")
     truth = truth_for_model(data.tree, next(iter(models.values())))
     table = derivative_table(models, truth)
-    board = fidelity_scoreboard(models, truth)
-    for name in ("bound", "bound_kind", "error_in_bounds", "bias_flag", "bias_reason"):
+    in_band = None
+    if truth is not None:
+        fitted = {m: truth_in_band(data, ds) for m, ds in models.items()}
+        fitted = {m: ds for m, ds in fitted.items() if ds is not None}
+        if fitted:
+            names = [str(p) for p in table.parameter.values]
+            in_band = xr.DataArray(
+                np.array([parameter_values(fitted[m], names) if m in fitted
+                          else np.full(len(names), np.nan) for m in models]).T,
+                dims=("parameter", "model"), coords={"parameter": names, "model": list(models)})
+    board = fidelity_scoreboard(models, truth, in_band=in_band)
+    for name in ("bound", "bound_kind", "error_in_bounds", "bias_flag", "bias_reason",
+                 "truth_in_band", "band_error_in_bounds"):
         table[name] = board[name]
     table.attrs.update(bias_bounds_max=board.attrs["bias_bounds_max"],
                        bias_meaning=BIAS_MEANING)

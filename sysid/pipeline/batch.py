@@ -67,6 +67,9 @@ The ``batch.nc`` Dataset (dims ``condition``, ``model`` (the identification meth
   condition, for a higher-order structure (flapping) the linearisation reduced to its states
   (:func:`sysid.assess.comparison.truth_for_model`); NaN for delays;
 - ``J_ave`` (condition, model); ``j_rms`` (condition, model): mean verification J_rms;
+  ``truth_in_band`` (condition, model, parameter): the frequency-domain model's structure
+  fitted to the truth's exact responses at its own points and weights (the structure's part
+  of its error; :func:`sysid.assess.comparison.truth_in_band`);
   ``j_rms_truth`` (condition): the same of the truth linearisation reduced to the structure
   (:func:`sysid.assess.stages.truth_references`), the floor the data's turbulence and noise
   set.
@@ -446,6 +449,13 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
             j_rms[i] = float(np.mean(values))
     floor = [float(v["j_rms"].sel(source=TRUTH_SOURCE)) for v in verification
              if "j_rms" in v and TRUTH_SOURCE in v["j_rms"].source.values]
+    in_band = np.full_like(value, np.nan)
+    if "comparison" in tree.children and "truth_in_band" in tree["comparison"].ds:
+        band = tree["comparison"].to_dataset(inherit=False)["truth_in_band"]
+        for i, method in enumerate(methods):
+            if method in band.model.values:
+                in_band[i] = parameter_values(
+                    xr.Dataset({"value": band.sel(model=method)}), names)
     dims = ("model", "parameter")
     return xr.Dataset(
         {"value": (dims, value),
@@ -453,6 +463,10 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
          "truth": (("parameter",), truth_values,
                    {"long_name": "truth model's linearisation (quasi-steady, or reduced to "
                                  "a higher-order structure's states)"}),
+         "truth_in_band": (dims, in_band,
+                           {"long_name": "the structure fitted to the truth's exact responses "
+                                         "in the frequency-domain estimate's band, points and "
+                                         "weights (sysid.assess.comparison.truth_in_band)"}),
          "J_ave": (("model",), j_ave, {"long_name": "average frequency-domain cost"}),
          "j_rms": (("model",), j_rms,
                    {"long_name": "mean J_rms over the verification manoeuvres"}),
