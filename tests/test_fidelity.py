@@ -171,6 +171,15 @@ def test_truth_in_band_recovers_a_truth_the_structure_contains():
                                atol=1e-3)
     assert truth_in_band(without, estimate) is None
     assert truth_in_band(data, estimate.assign_attrs(method="time_domain")) is None
+    # a band fit that cannot run (here no point reaches the coherence limit) leaves the table
+    # without it and says why
+    broken = estimate.assign_attrs(coherence_min=0.99)
+    tree = data.tree.copy()
+    tree["models/frequency_domain"] = xr.DataTree(broken)
+    table = compare_models(CampaignData(tree, source="broken"))
+    assert np.isnan(table["truth_in_band"]).all()
+    assert "coheren" in table.attrs["truth_in_band_failed"]
+    assert table["error_in_bounds"].notnull().any()
 
 
 # --- Quasi-steady equivalents of a higher-order model ----------------------------------------

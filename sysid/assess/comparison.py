@@ -19,13 +19,14 @@ structure's part (``truth_in_band - truth``) and the data's (``estimate - truth_
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 import xarray as xr
 
-from sysid.core.errors import InputDataError
+from sysid.core.errors import IdentificationError, InputDataError
 from sysid.core.guidelines import BIAS_BOUNDS_MAX, COHERENCE_MIN
 from sysid.core.util import atomic_path
 from sysid.data.campaign import CampaignData
@@ -440,9 +441,14 @@ def compare_models(data: CampaignData) -> xr.Dataset:
                              "run 'sysid identify' and/or 'sysid identify-time' first")
     truth = truth_for_model(data.tree, next(iter(models.values())))
     table = derivative_table(models, truth)
-    in_band = None
+    in_band, failed = None, {}
     if truth is not None:
-        fitted = {m: truth_in_band(data, ds) for m, ds in models.items()}
+        fitted = {}
+        for m, ds in models.items():
+            try:
+                fitted[m] = truth_in_band(data, ds)
+            except (IdentificationError, InputDataError) as exc:  # a diagnostic: the table
+                failed[m] = f"{type(exc).__name__}: {exc}"      # stands without it
         fitted = {m: ds for m, ds in fitted.items() if ds is not None}
         if fitted:
             names = [str(p) for p in table.parameter.values]
@@ -456,6 +462,8 @@ def compare_models(data: CampaignData) -> xr.Dataset:
         table[name] = board[name]
     table.attrs.update(bias_bounds_max=board.attrs["bias_bounds_max"],
                        bias_meaning=BIAS_MEANING)
+    if failed:
+        table.attrs["truth_in_band_failed"] = json.dumps(failed)
     return table
 
 
