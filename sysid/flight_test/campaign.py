@@ -853,5 +853,8 @@ def _time_history(applied, measured, dt, maneuver, campaign, trim, sim, seed) ->
         if campaign.stabilisation.enabled else "off",
     }
     attrs["turbulence_m_s"] = flown_turbulence(maneuver, campaign)
+    # the FMU is stepped with each command held over the step: the recorded samples relate
+    # through a zero-order hold, which the frequency responses divide out
+    attrs["input_hold"] = "zero_order"
     attrs.update({f"trim_{c}": float(v) for c, v in trim.channel_values().items()})
     return xr.Dataset(data, coords={"time": ("time", time, {"units": "s"})}, attrs=attrs)

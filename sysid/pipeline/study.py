@@ -172,8 +172,9 @@ class StudySettings:
 
 
 #: Version of what the stages store; bump it when a stored layout changes so that caches
-#: written by an older layout are recomputed (2: /linearization_full carries C and D).
-DATA_FORMAT = 2
+#: written by an older layout are recomputed (2: /linearization_full carries C and D; 3: the
+#: manoeuvres carry input_hold and the responses have the hold divided out).
+DATA_FORMAT = 3
 
 
 def _key(*parts) -> str:

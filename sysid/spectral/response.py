@@ -33,7 +33,8 @@ frequency)
     Eq. 14 at equal coherence), cross-control coherence Eq. 8, and each input's multiple
     coherence on the other inputs.
 ``Gxx_pair``, ``Gyy_pair``, ``Gxy_pair`` (output, input, frequency)
-    the composite (conditioned) pair spectra, ``H = Gxy_pair / Gxx_pair``.
+    the composite (conditioned) pair spectra of the sampled data, ``H = Gxy_pair /
+    Gxx_pair / Z`` (``Z`` the input hold's transfer, 1 without one; below).
 ``collinear`` (frequency), bool
     no window is usable there (nearly collinear inputs in every window trusted at that
     frequency); ``H`` is NaN.
@@ -48,6 +49,14 @@ states whose segment start/end leakage was conditioned out; empty when off) and
 Leakage-free by default: with ``transient_states="auto"`` (the default) every measured state
 among :data:`LEAKAGE_STATES` joins the conditioning through its taper-derivative transform
 (docs/methods.md, "Leakage-free conditioning").
+
+Held inputs: records whose ``input_hold`` attribute is ``"zero_order"`` (a simulation
+stepped with each input sample held over its interval, as the truth FMU is flown) relate
+their samples through the zero-order hold, ``Z(j w) = (1 - e^{-j w T}) / (j w T)``: a delay
+of half a sample (5 ms at 100 Hz, 4 deg at 15 rad/s) that is the sampling's, not the
+aircraft's. ``H`` is divided by it, so it is the continuous system's response that the
+models describe (the time-domain fits discretise with the same hold); attribute
+``input_hold`` says what was divided out (docs/methods.md, "Spectra").
 """
 
 from __future__ import annotations
@@ -81,6 +90,10 @@ SAMPLES_PER_PERIOD_AT_OMEGA_MAX = 10.0
 LEAKAGE_STATES = ("u", "v", "w", "p", "q", "r", "phi", "theta")
 #: Values of ``transient_states`` that choose :data:`LEAKAGE_STATES` automatically.
 AUTO = "auto"
+#: Values of a record's ``input_hold`` attribute: ``"zero_order"``, every input sample held
+#: over its sample interval (a simulation stepped with it); absent for measured data, whose
+#: inputs are sampled like the outputs.
+INPUT_HOLDS = ("zero_order",)
 #: The campaign group where a study keeps the conditioned responses without leakage
 #: conditioning beside the default ones (docs/data_model.md; the report's before/after figure).
 NO_TRANSIENT_GROUP = "frequency_response_no_transient"
@@ -143,6 +156,37 @@ def _frequency_grid(frequencies, omega_min, omega_max, n_frequencies, windows, d
             f"frequencies {float(grid.min()):.6g}..{float(grid.max()):.6g} rad/s: expected "
             f"positive values below the Nyquist frequency {nyquist:.6g} rad/s")
     return grid
+
+
+def zero_order_hold(omega, dt: float) -> np.ndarray:
+    """Transfer of a zero-order hold of interval ``dt`` (s) at ``omega`` (rad/s):
+    ``Z(j w) = (1 - e^{-j w dt}) / (j w dt)``, about ``e^{-j w dt / 2}`` (1 at 0).
+
+    Examples
+    --------
+    >>> np.angle(zero_order_hold([10.0], 0.01), deg=True)   # half a sample: -0.05 rad
+    array([-2.86478898])
+    """
+    x = 1j * np.asarray(omega, dtype=float) * dt
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(x == 0, 1.0 + 0j, (1.0 - np.exp(-x)) / np.where(x == 0, 1.0, x))
+    return z
+
+
+def records_input_hold(records) -> str | None:
+    """The ``input_hold`` shared by every record (``None``: not held, measured data).
+    Raises InputDataError for an unknown value or records that disagree."""
+    holds = {name: ds.attrs.get("input_hold") for name, ds in _spectra._named_records(records)}
+    values = set(holds.values())
+    unknown = sorted(str(v) for v in values - {None, *INPUT_HOLDS})
+    if unknown:
+        raise InputDataError(f"records have input_hold {unknown}; expected one of "
+                             f"{list(INPUT_HOLDS)} or none (measured data)")
+    if len(values) > 1:
+        raise InputDataError(f"records disagree on how their inputs were held between samples "
+                             f"(attribute input_hold): {holds}; compute their responses "
+                             f"separately")
+    return next(iter(values)) if values else None
 
 
 def frequency_response(records, inputs: Sequence[str], outputs: Sequence[str], *,
@@ -245,6 +289,7 @@ def frequency_response(records, inputs: Sequence[str], outputs: Sequence[str], *
     with prog.stage("frequency response: checking records"):
         extra = [c for c in transient if c not in outputs]
         signals = _spectra.perturbations(records, inputs + outputs + extra, inputs)
+        hold = records_input_hold(records)
     dt = signals[0].attrs["dt"]
     durations = [s.sizes["time"] * dt for s in signals]
     if windows is None:
@@ -285,6 +330,11 @@ def frequency_response(records, inputs: Sequence[str], outputs: Sequence[str], *
             per_window = siso
     with prog.stage("frequency response: composite windowing"):
         result, weight = _assemble(per_window, siso, conditioned, coherence_weight)
+    if hold == "zero_order":  # the sampling's half-sample delay is not the system's
+        Z = xr.DataArray(zero_order_hold(result["frequency"].values, dt), dims="frequency",
+                         coords={"frequency": result["frequency"]})
+        for ds in (result, per_window):
+            ds["H"] = (ds["H"] / Z).assign_attrs(ds["H"].attrs)
     collinear_note = _collinear_note(result, per_window, collinear_threshold)
     if collinear_note and bool(result["collinear"].all()):
         raise InputDataError(f"{collinear_note}: no conditioned response exists at any "
@@ -300,6 +350,7 @@ def frequency_response(records, inputs: Sequence[str], outputs: Sequence[str], *
         "coherence_weight": coherence_weight,
         "sample_interval": dt, "transient_states": list(transient),
         "transient_choice": transient_choice,
+        "input_hold": hold or "none",
     }
     result.attrs = dict(attrs)
     result.attrs["collinear_note"] = collinear_note
