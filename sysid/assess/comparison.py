@@ -216,12 +216,9 @@ def fidelity_scoreboard(models: Mapping[str, xr.Dataset], truth: xr.Dataset | No
     with np.errstate(divide="ignore", invalid="ignore"):
         z = np.where(bound > 0, np.abs(error.values) / bound, np.nan)   # no bound: no score
     flag = np.isfinite(z) & (z > threshold)
-    band = np.full(shape, np.nan)
-    if in_band is not None:
-        for i, name in enumerate(names):
-            for j, method in enumerate(methods):
-                if name in in_band.parameter.values and method in in_band.model.values:
-                    band[i, j] = float(in_band.sel(parameter=name, model=method))
+    band = (np.full(shape, np.nan) if in_band is None else
+            in_band.reindex(parameter=names, model=methods).transpose("parameter", "model")
+            .values.astype(float))
     with np.errstate(divide="ignore", invalid="ignore"):
         band_z = np.where(bound > 0, np.abs(table["value"].values - band) / bound, np.nan)
     for i, j, model, k in entries:

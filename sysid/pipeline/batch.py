@@ -452,10 +452,8 @@ def condition_summary(folder: str | Path) -> xr.Dataset:
     in_band = np.full_like(value, np.nan)
     if "comparison" in tree.children and "truth_in_band" in tree["comparison"].ds:
         band = tree["comparison"].to_dataset(inherit=False)["truth_in_band"]
-        for i, method in enumerate(methods):
-            if method in band.model.values:
-                in_band[i] = parameter_values(
-                    xr.Dataset({"value": band.sel(model=method)}), names)
+        in_band = band.reindex(model=methods, parameter=names).transpose(
+            "model", "parameter").values.astype(float)
     dims = ("model", "parameter")
     return xr.Dataset(
         {"value": (dims, value),
