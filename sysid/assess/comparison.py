@@ -286,7 +286,8 @@ def truth_in_band(data: CampaignData, model: xr.Dataset) -> xr.Dataset | None:
     linearisation's (the full one where the campaign has it), so the same coherence and
     random error select and weigh the same points; the estimate's pairs, coherence limit,
     band and points per pair; started at the estimate, the parameters it removed held, no
-    reduction. ``model - truth_in_band`` is the data's part of an error (noise, turbulence,
+    reduction and no point-selection bootstrap (its bounds would be the noise-free data's).
+    ``model - truth_in_band`` is the data's part of an error (noise, turbulence,
     nonlinearity, spectral estimates), ``truth_in_band - truth`` the structure's.
 
     None for a model of another method, or without composite responses or a linearisation
@@ -315,7 +316,8 @@ def truth_in_band(data: CampaignData, model: xr.Dataset) -> xr.Dataset | None:
     fit = identify_frequency_domain(
         responses, structure, pairs=pairs or None, start=model, frequency_range=band,
         coherence_min=float(attrs.get("coherence_min", COHERENCE_MIN)),
-        n_points=int(attrs.get("n_points_per_pair", N_POINTS)), reduce=False)
+        n_points=int(attrs.get("n_points_per_pair", N_POINTS)), reduce=False,
+        selection_draws=0)
     return fit.model.assign_attrs(method="truth_in_band", linearization=f"/{name}")
 
 
