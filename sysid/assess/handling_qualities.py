@@ -47,12 +47,15 @@ control sample over the sample interval ``dt`` and records the response at the s
 hold, so its data carry the zero-order hold ``Z(j omega) = e^{-j omega dt/2} sinc(omega dt / 2)``
 (a 5 ms delay at 100 Hz; the exact ZOH equivalent of a continuous model agrees with ``G Z`` to
 four digits in bandwidth and phase delay below 20 rad/s) that belongs to the simulated test, not
-to the helicopter. The assessment describes the helicopter: the known hold is divided out of
-the data's response (``sample_hold``), and out of a model fitted to those responses (a
-frequency-domain fit, attribute ``J_ave``, whose delays absorbed it); the truth
-linearisations and time-domain models (simulated with the hold applied exactly,
-:func:`sysid.models.simulation.simulate`) are continuous already. Imported data (no hold
-known) are left as they are.
+to the helicopter. The assessment describes the helicopter. Since 2026-11-27 the spectral
+stage divides the hold out of the responses itself (records marked ``input_hold``,
+:func:`sysid.spectral.response.frequency_response`), so the data and the frequency-domain
+models fitted to them are continuous and nothing more is divided here; for responses computed
+before (no ``input_hold`` attribute) the known hold is divided out of the data's response
+(``sample_hold``) and out of a model fitted to those responses (a frequency-domain fit,
+attribute ``J_ave``, whose delays absorbed it). The truth linearisations and time-domain
+models (simulated with the hold applied exactly, :func:`sysid.models.simulation.simulate`)
+are continuous already. Imported data (no hold known) are left as they are.
 
 Level boundaries (:data:`ADS33_BOUNDARIES`): hover and low speed, target acquisition and
 tracking, and all other MTEs, for pitch and roll (ADS-33E-PRF 3.3.2.1) and yaw (3.3.5.1).
@@ -90,6 +93,7 @@ from sysid.flight_test.campaign import Campaign, Maneuver, run_campaign
 from sysid.identify.frequency_domain import select_fit_data
 from sysid.identify.transfer_function import RATE_OF, TRUTH_SOURCES, pair_response
 from sysid.models import frequency_response
+from sysid.spectral.response import zero_order_hold
 
 __all__ = ["AXES", "RESPONSE_TYPES", "MTES", "ADS33_BOUNDARIES", "ADS33_SOURCE",
            "bandwidth_phase_delay", "boundary_bandwidth", "ads33_level", "attitude_responses",
@@ -316,14 +320,6 @@ def ads33_level(bandwidth, tau_p, *, axis: str, mte: str) -> np.ndarray:
 # a campaign
 
 
-def zero_order_hold(omega, dt: float) -> np.ndarray:
-    """Frequency response of a zero-order hold of ``dt`` s sampled at the start of each hold:
-    ``e^{-j omega dt/2} sinc(omega dt/2)`` on ``omega`` (rad/s); a delay of ``dt/2`` and a gain
-    droop (module docstring)."""
-    x = np.asarray(omega, float) * float(dt) / 2.0
-    return np.exp(-1j * x) * np.sinc(x / np.pi)
-
-
 def carries_sample_hold(model: xr.Dataset) -> bool:
     """Whether an identified model was fitted to a campaign's frequency responses (a
     frequency-domain fit, attribute ``J_ave``), so that its delays absorbed the campaign's
@@ -413,12 +409,32 @@ def attitude_responses(data: CampaignData, *, sources: Sequence[str] | None = No
     return out
 
 
-def sample_hold_interval(data: CampaignData) -> float | None:
-    """The zero-order hold (s) of a campaign's data: the frequency response's
-    ``sample_interval`` when the campaign was flown by sysid (root ``campaign_toml``), else
-    None (imported data: unknown)."""
+def _hold_removed(data: CampaignData, hold: float | None, names: Sequence[str],
+                  responses: dict) -> dict:
+    """``sample_hold_removed_s`` and ``sample_hold_removed_from`` of the assessment: the hold
+    divided out here, or by the spectral stage (then out of the data and so out of the
+    frequency-domain models fitted to them)."""
     fr = data.frequency_response()
-    if fr is None or not data.tree.attrs.get("campaign_toml"):
+    if not hold and fr is not None and fr.attrs.get("input_hold") == "zero_order":
+        models = data.models()
+        upstream = [n for n in names if n == "data"
+                    or (n in models and carries_sample_hold(models[n]))]
+        return {"sample_hold_removed_s": float(fr.attrs["sample_interval"]),
+                "sample_hold_removed_from": ",".join(upstream)}
+    return {"sample_hold_removed_s": float(hold) if hold else 0.0,
+            "sample_hold_removed_from": ",".join(
+                n for n in names if any(n in e["hold_removed"] for e in responses.values()))}
+
+
+def sample_hold_interval(data: CampaignData) -> float | None:
+    """The zero-order hold (s) still in a campaign's frequency responses: their
+    ``sample_interval`` when the campaign was flown by sysid (root ``campaign_toml``) and the
+    responses were computed before the spectral stage divided the hold out itself (no
+    ``input_hold`` attribute: :func:`sysid.spectral.response.frequency_response`), else None
+    (divided out already; imported data: unknown)."""
+    fr = data.frequency_response()
+    if (fr is None or not data.tree.attrs.get("campaign_toml")
+            or fr.attrs.get("input_hold") == "zero_order"):
         return None
     dt = fr.attrs.get("sample_interval")
     return float(dt) if dt is not None and float(dt) > 0 else None
@@ -699,7 +715,5 @@ def handling_qualities(data: CampaignData, *, response_type: str | Mapping[str, 
                 "phase_delay": "tau_p = -(phase(2 omega_180) + 180 deg) / "
                                "(57.3 * 2 omega_180)",
                 "uncertainty": "one standard deviation from the composite random error",
-                "sample_hold_removed_s": float(hold) if hold else 0.0,
-                "sample_hold_removed_from": ",".join(
-                    n for n in names if any(n in e["hold_removed"] for e in responses.values()))}
+                **_hold_removed(data, hold, names, responses)}
     return ds
