@@ -226,9 +226,13 @@ def test_linear_regime_campaign_agrees_with_the_full_linearisation_within_muad(t
 #: next to the unstable pitch-roll oscillation, is 24-28 deg outside the MUAD phase bound at
 #: coherence 0.63-0.75 with any set of transient states, and inside with the plain estimate
 #: (docs/notes/2026-11-24-leakage-free-by-default.md). Strict: it fails once it passes again.
-_SEED_3 = pytest.param(3, marks=pytest.mark.xfail(
-    strict=True, reason="leakage-free q/lon phase near the pitch-roll oscillation, issue 21"))
-OTHER_SEEDS = ([_SEED_3 if s == 3 else s for s in range(1, 8)]
+#: Seed 4 the same (found 2026-11-27, with and without the zero-order hold divided out): q/lon
+#: at 0.40-0.41 rad/s, coherence 0.62-0.66, 4.3 deg outside the phase bound.
+_NEAR_OSCILLATION = pytest.mark.xfail(
+    strict=True, reason="leakage-free q/lon phase near the pitch-roll oscillation, issue 21")
+_SEED_3 = pytest.param(3, marks=_NEAR_OSCILLATION)
+OTHER_SEEDS = ([pytest.param(s, marks=_NEAR_OSCILLATION) if s in (3, 4) else s
+                for s in range(1, 8)]
                if os.environ.get("SYSID_EXHAUSTIVE") == "1" else (_SEED_3,))
 
 
