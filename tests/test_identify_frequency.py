@@ -466,6 +466,26 @@ def test_roll_row_running_away_is_anchored_at_the_start_damping():
                                   anchored.statistics)
 
 
+def test_a_parameter_a_thousand_times_its_start_ran_away_whatever_its_bound():
+    """Far along the valley the bound relative to the value shrinks (full 100-kt campaign:
+    L_p at 6e8 with a bound under 100 %): beyond RUNAWAY_FAR_FACTOR times its start a
+    parameter counts as run away even with a small bound; below it only with a large one."""
+    from types import SimpleNamespace
+
+    from sysid.identify.frequency_domain import (RUNAWAY_FACTOR, RUNAWAY_FAR_FACTOR,
+                                                 runaway_parameters)
+
+    names = ["L_p", "L_lat", "M_q", "N_r"]
+    start = np.array([-11.0, 13.8, -3.2, -0.9])
+    theta = start * np.array([2 * RUNAWAY_FAR_FACTOR, 2 * RUNAWAY_FACTOR,
+                              2 * RUNAWAY_FACTOR, 1.0])
+    stats = SimpleNamespace(identifiable=np.array([True, True, True, True]),
+                            cramer_rao_percent=np.array([5.0, 5.0, 500.0, 500.0]))
+    # L_p: far, small bound -> ran away; L_lat: large, small bound -> not; M_q: large and
+    # undetermined -> ran away; N_r: at its start -> not
+    assert runaway_parameters(names, theta, start, stats) == ["L_p", "M_q"]
+
+
 def test_jacobian_is_finite_where_the_model_response_vanishes():
     """A trial point whose response is exactly zero (or whose slope overflows) gets zero
     slope, as its residual is clamped to a constant; finite points keep the analytic

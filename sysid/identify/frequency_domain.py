@@ -153,6 +153,11 @@ CONDITIONAL_START = True
 #: 27x the linearisation, CR 235-250 %, on to 1e15 in the model reduction).
 RUNAWAY_FACTOR = 10.0
 RUNAWAY_CR_PERCENT = UNDETERMINED_PERCENT
+#: ... or when it ends this many times larger than its start value (and than 1) whatever its
+#: bound: far along such a valley the relative bound shrinks with the value (full 100-kt
+#: campaign: the roll row at 1e8-1e9, L_p at 6e8 with a bound under 100 %, no anchor, 1e20
+#: in the reduction and a model whose 2311 response overflowed).
+RUNAWAY_FAR_FACTOR = 1000.0
 #: Runaway damping derivatives are held at their start values (the a priori model), which
 #: fixes the scale of their row while the ratios of the others to them stay identified.
 #: Other runaway parameters are left to the model reduction.
@@ -948,13 +953,16 @@ def _converge(structure: LinearStructure, data: FitData, theta0, *, method: str,
 
 def runaway_parameters(names: Sequence[str], theta, start, statistics: ParameterStatistics
                        ) -> list[str]:
-    """Free parameters that ran away from their start values (see :data:`RUNAWAY_FACTOR`)."""
+    """Free parameters that ran away from their start values (see :data:`RUNAWAY_FACTOR`
+    and :data:`RUNAWAY_FAR_FACTOR`)."""
     theta, start = np.asarray(theta, float), np.asarray(start, float)
-    large = np.abs(theta) > RUNAWAY_FACTOR * np.maximum(np.abs(start), 1.0)
+    scale = np.maximum(np.abs(start), 1.0)
+    large = np.abs(theta) > RUNAWAY_FACTOR * scale
+    far = np.abs(theta) > RUNAWAY_FAR_FACTOR * scale
     with np.errstate(invalid="ignore"):
         undetermined = (~statistics.identifiable
                         | ~(statistics.cramer_rao_percent <= RUNAWAY_CR_PERCENT))
-    return [n for n, a, b in zip(names, large, undetermined) if a and b]
+    return [n for n, a, b, c in zip(names, large, undetermined, far) if (a and b) or c]
 
 
 def _anchor_runaways(structure: LinearStructure, data: FitData, theta0, full: _Converged,
