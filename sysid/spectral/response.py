@@ -160,17 +160,16 @@ def _frequency_grid(frequencies, omega_min, omega_max, n_frequencies, windows, d
 
 def zero_order_hold(omega, dt: float) -> np.ndarray:
     """Transfer of a zero-order hold of interval ``dt`` (s) at ``omega`` (rad/s):
-    ``Z(j w) = (1 - e^{-j w dt}) / (j w dt)``, about ``e^{-j w dt / 2}`` (1 at 0).
+    ``Z(j w) = (1 - e^{-j w dt}) / (j w dt) = e^{-j w dt / 2} sinc(w dt / 2)``, a delay of
+    half a sample and a gain droop (1 at 0).
 
     Examples
     --------
     >>> np.angle(zero_order_hold([10.0], 0.01), deg=True)   # half a sample: -0.05 rad
     array([-2.86478898])
     """
-    x = 1j * np.asarray(omega, dtype=float) * dt
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z = np.where(x == 0, 1.0 + 0j, (1.0 - np.exp(-x)) / np.where(x == 0, 1.0, x))
-    return z
+    x = np.asarray(omega, dtype=float) * float(dt) / 2.0
+    return np.exp(-1j * x) * np.sinc(x / np.pi)
 
 
 def records_input_hold(records) -> str | None:
