@@ -272,6 +272,20 @@ def test_parameter_without_influence_is_reported_unidentifiable():
     assert reduced.reduction.steps[0].reason == "unidentifiable"
 
 
+def test_structure_declared_pairs_are_the_default():
+    """Without ``pairs`` the fit uses the structure's own (TOML ``pairs``); given ones win."""
+    st = truth_structure()
+    fr = analytic_response(st)
+    no_pedal = [p for p in DEFAULT_PAIRS if p[1] != "ped"]
+    st.attrs["fit_pairs"] = ",".join(f"{o}/{i}" for o, i in no_pedal)
+    declared = identify_frequency_domain(fr, st, reduce=False)
+    assert list(declared.data.pairs) == no_pedal
+    assert {"Y_ped", "N_ped"} <= set(declared.unidentifiable)   # nothing about the pedal
+    given = identify_frequency_domain(fr, st, pairs=DEFAULT_PAIRS, reduce=False)
+    assert list(given.data.pairs) == list(DEFAULT_PAIRS)
+    assert "N_ped" not in given.unidentifiable
+
+
 def test_pair_without_coherent_range_is_skipped_and_reported():
     st = truth_structure()
     fr = analytic_response(st)

@@ -245,6 +245,22 @@ def test_toml_process_noise_names_states(tmp_path):
         load_structure(path, trim={"theta": 5.0})
 
 
+def test_toml_pairs_name_the_structures_own_responses(tmp_path):
+    """A structure may declare the output/input responses its frequency-domain fit uses;
+    each must pair one of its outputs with one of its inputs."""
+    path = tmp_path / "s.toml"
+    path.write_text(TOML.replace("\n\n[kinematics]", '\npairs = ["q/lon", "p/lat"]\n\n[kinematics]', 1))
+    assert load_structure(path, trim={"theta": 5.0}).attrs["fit_pairs"] == "q/lon,p/lat"
+    assert "fit_pairs" not in load_structure("hover_6dof", trim={"theta": 6.8,
+                                                                 "phi": -2.9}).attrs
+    for bad in ('["q/lon", "a1/lon"]', '["q/lon", "q/thrust"]', '["q-lon"]',
+                '["q/lon", "q/lon"]', '[]'):
+        path.write_text(TOML.replace("\n\n[kinematics]", f"\npairs = {bad}\n\n[kinematics]", 1))
+        with pytest.raises(InputDataError, match="pairs must be distinct 'output/input'"
+                           if bad != "[]" else "pairs = \\[\\]: expected a non-empty list"):
+            load_structure(path, trim={"theta": 5.0})
+
+
 def test_builtin_hover_structure():
     assert {"hover_6dof", "paper_hover"} <= set(builtin_structures())
     paper = load_structure("paper_hover", trim={"theta": 6.76, "phi": -2.87})

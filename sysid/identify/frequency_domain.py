@@ -1096,7 +1096,8 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
     structure : LinearStructure
         Model structure; its free parameters are estimated.
     pairs : str or sequence, optional
-        Fitted pairs, e.g. ``"q/lon,p/lat"``; default :data:`DEFAULT_PAIRS` (the paper's 13).
+        Fitted pairs, e.g. ``"q/lon,p/lat"``; default the structure's (``pairs`` in its
+        TOML file), else :data:`DEFAULT_PAIRS` (the paper's 13).
     start : xr.Dataset or array, optional
         Start values: a model Dataset (e.g. the truth model's quasi-steady linearisation) or
         the free-parameter vector. Default: frequency-domain equation error when every state
@@ -1153,6 +1154,8 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
     progress = progress or Progress(quiet=quiet)
     if frequency_range is None and "fit_omega_max" in structure.attrs:
         frequency_range = (structure.attrs["fit_omega_min"], structure.attrs["fit_omega_max"])
+    if pairs is None:
+        pairs = structure.attrs.get("fit_pairs")  # the structure's own, else the paper's
     selection = dict(pairs=pairs, coherence_min=coherence_min, n_points=n_points,
                      ranges=ranges, frequency_range=frequency_range,
                      fallback_coherence_min=fallback_coherence_min)

@@ -64,6 +64,10 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
         process_noise = ["u", "v", "w"]    # optional: the states whose equations carry the
                                            # filter error's process noise (where the
                                            # disturbances enter); default its "measured"
+        frequency_range = [0.3, 20.0]      # optional: rad/s, the band where the structure
+                                           # is valid (its frequency-domain fit's band)
+        pairs = ["q/lon", "p/lat"]         # optional: "output/input" responses its
+                                           # frequency-domain fit uses; default the paper's
 
         [kinematics]                       # fixed rigid-body terms in A (6-DoF states only)
         theta0 = "trim"                    # deg; "trim" = from the data's trim_theta
@@ -141,8 +145,8 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
             raise InputDataError(f"structure {source}: [{table}] must be a table, got "
                                  f"{spec[table]!r}")
     known_tables = {"name", "description", "states", "inputs", "outputs", "kinematics", "trim",
-                    "frequency_range", "process_noise", "output_equations", "sensors",
-                    "A", "B", "C", "D", "delays"}
+                    "frequency_range", "pairs", "process_noise", "output_equations",
+                    "sensors", "A", "B", "C", "D", "delays"}
     extra = set(spec) - known_tables
     if extra:
         raise InputDataError(f"structure {source}: unknown keys {sorted(extra)}; "
@@ -188,6 +192,16 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
             raise InputDataError(f"structure {source}: frequency_range needs 0 <= omega_min < "
                                  f"omega_max, got {band!r}")
         attrs.update(fit_omega_min=lo, fit_omega_max=hi)
+    if "pairs" in spec:
+        # the responses the structure is fitted to, where they differ from the paper's
+        pairs = _names(spec["pairs"], f"structure {source}: pairs")
+        bad = [p for p in pairs if len(p.split("/")) != 2 or p.split("/")[0] not in outputs
+               or p.split("/")[1] not in inputs]
+        if bad or not pairs or len(set(pairs)) != len(pairs):
+            raise InputDataError(f"structure {source}: pairs must be distinct 'output/input' "
+                                 f"names with an output of {outputs} and an input of "
+                                 f"{inputs}; got {bad or pairs}")
+        attrs["fit_pairs"] = ",".join(pairs)
     if "process_noise" in spec:
         noisy = _names(spec["process_noise"], f"structure {source}: process_noise")
         unknown = [s for s in noisy if s not in states]
