@@ -38,7 +38,7 @@ from sysid.data.campaign import CampaignData
 from sysid.data.importers import write_csv
 from sysid.flight_test.example import jittered_record
 from sysid.identify.frequency_domain import with_derived_states
-from sysid.models import load_structure, structure_from_dict
+from sysid.models import load_structure, structure_from_dict, structure_path
 from sysid.report.read import pair_costs
 from sysid.truth import linearize, trim
 from sysid.truth.linearize import truth_for_structure
@@ -81,6 +81,26 @@ def test_measured_structure_moves_delays_off_the_rows_the_accelerometers_read():
         "tau_ped"]["entry"] == "ped"
     with pytest.raises(InputDataError, match="none of its states"):
         measured_structure("hover_6dof", ("h",))
+
+
+def test_a_structures_own_pairs_move_onto_the_measured_outputs(tmp_path):
+    """A structure that names its pairs keeps them on flight data, the accelerometer in
+    place of an unmeasured velocity and unmeasured outputs left out; none left is an error."""
+    text = structure_path("hover_6dof").read_text().replace(
+        '\n[kinematics]', '\npairs = ["u/lon", "q/lon", "p/ped", "psi/ped"]\n\n[kinematics]', 1)
+    path = tmp_path / "own.toml"
+    path.write_text(text)
+    spec = measured_structure(path, ACC_OUTPUTS)
+    assert spec["pairs"] == ["ax/lon", "q/lon", "p/ped", "psi/ped"]
+    st = structure_from_dict(spec, trim={"theta": 3.0, "phi": -2.0})
+    assert st.attrs["fit_pairs"] == "ax/lon,q/lon,p/ped,psi/ped"
+    assert tomllib.loads(structure_toml(spec)) == spec
+    rates = ("p", "q", "r")                                      # no u, no ax, no psi
+    assert measured_structure(path, rates)["pairs"] == ["q/lon", "p/ped"]
+    path.write_text(text.replace('["u/lon", "q/lon", "p/ped", "psi/ped"]', '["psi/ped"]'))
+    with pytest.raises(InputDataError, match="none of its pairs"):
+        measured_structure(path, rates)
+    assert "pairs" not in measured_structure("hover_6dof", ACC_OUTPUTS)   # the paper's
 
 
 def test_structure_toml_reads_back():

@@ -44,7 +44,7 @@ from sysid.core.errors import InputDataError
 from sysid.core.units import ACCELERATIONS, CONTROLS, STATES_6DOF
 from sysid.core.util import atomic_path, blas_threads
 from sysid.data import importers
-from sysid.identify.frequency_domain import DEFAULT_PAIRS
+from sysid.identify.frequency_domain import DEFAULT_PAIRS, parse_pairs
 from sysid.models import structure_path
 from sysid.models.toml import ACCELEROMETER_ROWS, structure_from_dict
 from sysid.data.netcdf import read_campaign
@@ -112,13 +112,14 @@ def measured_outputs(records: Iterable[xr.Dataset], states: Sequence[str] = STAT
     return tuple(c for c in (*states, *ACCELERATIONS) if c in have)
 
 
-def measured_pairs(outputs: Sequence[str]) -> tuple[tuple[str, str], ...]:
-    """The frequency-domain fit's pairs for ``outputs``: the paper's pairs
-    (:data:`sysid.identify.frequency_domain.DEFAULT_PAIRS`), with the accelerometer of an
-    unmeasured velocity in its place (``ax/lon`` for ``u/lon``)."""
+def measured_pairs(outputs: Sequence[str], pairs=DEFAULT_PAIRS) -> tuple[tuple[str, str], ...]:
+    """The frequency-domain fit's pairs for ``outputs``: ``pairs`` (default the paper's,
+    :data:`sysid.identify.frequency_domain.DEFAULT_PAIRS`; a structure's own ``pairs``), with
+    the accelerometer of an unmeasured velocity in its place (``ax/lon`` for ``u/lon``) and
+    the others whose output is not measured left out."""
     velocity = {row: acc for acc, row in ACCELEROMETER_ROWS.items()}
     out = []
-    for o, i in DEFAULT_PAIRS:
+    for o, i in parse_pairs(pairs):
         if o not in outputs and velocity.get(o) in outputs:
             o = velocity[o]
         if o in outputs and (o, i) not in out:
@@ -143,9 +144,16 @@ def measured_structure(structure: str | Path, outputs: Sequence[str]) -> dict:
         raise InputDataError(f"structure {path}: none of its states {states} nor ax, ay, az "
                              f"is measured")
     spec["outputs"] = outputs
+    if "pairs" in spec:  # the structure's own pairs, on the measured outputs
+        pairs = measured_pairs(outputs, spec["pairs"])
+        if not pairs:
+            raise InputDataError(f"structure {path}: none of its pairs {spec['pairs']} has a "
+                                 f"measured output (measured: {outputs})")
+        spec["pairs"] = [f"{o}/{i}" for o, i in pairs]
     read = {ACCELEROMETER_ROWS[o] for o in outputs if o in ACCELEROMETER_ROWS}
     if read:
-        probe = structure_from_dict({**spec, "outputs": states, "delays": {}},
+        probe = structure_from_dict({**{k: v for k, v in spec.items() if k != "pairs"},
+                                     "outputs": states, "delays": {}},
                                     trim={"theta": 0.0, "phi": 0.0}, source=str(path))
         entries = {(p.row, p.column) for p in probe.parameters if p.matrix == "B"}
         delays = {}
@@ -230,7 +238,6 @@ class _FlightData(_Study):
         if not self.outputs:
             raise InputDataError(f"flight data: no measured output (any of "
                                  f"{[*STATES_6DOF, *ACCELERATIONS]}) in every manoeuvre")
-        self.fd_pairs = measured_pairs(self.outputs)
         settings = StudySettings(
             structure=structure, transient_states=transient_states,
             time_domain_method=time_domain_method,
@@ -240,7 +247,10 @@ class _FlightData(_Study):
             else "*")
         self.open(out_dir, settings, quiet=quiet, log=log)
         self.records, self.source = records, source
-        text = structure_toml(measured_structure(structure, self.outputs))
+        spec = measured_structure(structure, self.outputs)
+        # a structure's own pairs are already on the measured outputs; else the paper's
+        self.fd_pairs = None if "pairs" in spec else measured_pairs(self.outputs)
+        text = structure_toml(spec)
         structure_file = self.out / "structure.toml"
         if not structure_file.exists() or structure_file.read_text() != text:
             with atomic_path(structure_file) as tmp:
