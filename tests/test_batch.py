@@ -38,6 +38,10 @@ def test_conditions_and_structures():
     assert StudySettings(airspeed_kt=29.9).fd_coherence == 0.6
     assert StudySettings(airspeed_kt=30.0).fd_coherence == 0.4
     assert StudySettings(airspeed_kt=80.0, fd_coherence_min=0.5).fd_coherence == 0.5
+    # a structure that declares its own admission (TOML coherence_min) gets it, unless the
+    # study is told one
+    assert StudySettings(structure="hover_hybrid").fd_coherence == 0.4
+    assert StudySettings(structure="hover_hybrid", fd_coherence_min=0.6).fd_coherence == 0.6
 
 
 def test_ready_parts_go_out_critical_path_first():

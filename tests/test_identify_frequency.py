@@ -286,6 +286,21 @@ def test_structure_declared_pairs_are_the_default():
     assert "N_ped" not in given.unidentifiable
 
 
+def test_structure_declared_coherence_admission_is_the_default():
+    """Without ``coherence_min`` the fit admits points down to the structure's own
+    (TOML ``coherence_min``), else the 0.6 guideline; a given one wins."""
+    st = truth_structure()
+    fr = analytic_response(st, gamma2=0.5)        # coherent only at 0.5 in the band
+    with pytest.raises(IdentificationError, match="coherent"):
+        identify_frequency_domain(fr, st, reduce=False)
+    st.attrs["fit_coherence_min"] = 0.4
+    declared = identify_frequency_domain(fr, st, reduce=False)
+    assert declared.data.coherence_min == 0.4 and len(declared.data.pairs) == 13
+    assert declared.model.attrs["coherence_min"] == 0.4
+    with pytest.raises(IdentificationError, match="coherent"):
+        identify_frequency_domain(fr, st, coherence_min=0.6, reduce=False)
+
+
 def test_pair_without_coherent_range_is_skipped_and_reported():
     st = truth_structure()
     fr = analytic_response(st)

@@ -13,8 +13,9 @@ import xarray as xr
 from sysid.core.errors import InputDataError
 from sysid.core.kinematics import rigid_body_terms
 from sysid.models import (ALL_ROWS, LinearStructure, Parameter, builtin_structures,
-                          discretize, frequency_response, load_structure, model_from_dataset,
-                          model_matrices, propagate, simulate, six_dof_structure, statespace)
+                          declared_coherence_min, discretize, frequency_response,
+                          load_structure, model_from_dataset, model_matrices, propagate,
+                          simulate, six_dof_structure, statespace)
 from sysid.core.units import CONTROLS, STATES_6DOF
 
 
@@ -258,6 +259,23 @@ def test_toml_pairs_name_the_structures_own_responses(tmp_path):
         path.write_text(TOML.replace("\n\n[kinematics]", f"\npairs = {bad}\n\n[kinematics]", 1))
         with pytest.raises(InputDataError, match="pairs must be distinct 'output/input'"
                            if bad != "[]" else "pairs = \\[\\]: expected a non-empty list"):
+            load_structure(path, trim={"theta": 5.0})
+
+
+def test_toml_coherence_min_is_the_structures_own_admission(tmp_path):
+    """A structure may declare the coherence admission of its frequency-domain fit; it is
+    read with or without a trim, and must lie in (0, 1]."""
+    path = tmp_path / "s.toml"
+    path.write_text(TOML.replace("\n\n[kinematics]", "\ncoherence_min = 0.45\n\n[kinematics]", 1))
+    assert load_structure(path, trim={"theta": 5.0}).attrs["fit_coherence_min"] == 0.45
+    assert declared_coherence_min(path) == 0.45
+    assert declared_coherence_min("hover_6dof") is None
+    assert declared_coherence_min("hover_hybrid") == 0.4
+    for bad in ("0.0", "1.5", '"high"'):
+        path.write_text(TOML.replace("\n\n[kinematics]", f"\ncoherence_min = {bad}\n\n[kinematics]", 1))
+        with pytest.raises(InputDataError, match="coherence_min"):
+            declared_coherence_min(path)
+        with pytest.raises(InputDataError, match="coherence_min"):
             load_structure(path, trim={"theta": 5.0})
 
 

@@ -36,10 +36,11 @@ def register(subparsers) -> None:
                    help="structure TOML file or built-in name (default: hover_6dof)")
     p.add_argument("--pairs", default=None,
                    help="comma-separated output/input pairs, e.g. q/lon,p/lat "
-                        "(default: the paper's 13 pairs)")
+                        "(default: the structure's own, else the paper's 13 pairs)")
     p.add_argument("--no-reduction", action="store_true", help="skip the model reduction")
-    p.add_argument("--coherence-min", type=float, default=COHERENCE_MIN,
-                   help=f"coherence defining each pair's fitted range (default {COHERENCE_MIN})")
+    p.add_argument("--coherence-min", type=float, default=None,
+                   help="coherence defining each pair's fitted range (default: the "
+                        f"structure's coherence_min, else {COHERENCE_MIN})")
     p.add_argument("--points", type=int, default=20,
                    help="log-spaced frequency points per pair (default 20)")
     p.add_argument("--start", choices=FREQUENCY_DOMAIN_STARTS,

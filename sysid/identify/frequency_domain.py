@@ -1071,7 +1071,7 @@ class FrequencyFitResult(FitResultParameters):
 
 def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pairs=None,
                               start: xr.Dataset | np.ndarray | None = None,
-                              coherence_min: float = COHERENCE_MIN, n_points: int = N_POINTS,
+                              coherence_min: float | None = None, n_points: int = N_POINTS,
                               ranges: Mapping[str, tuple[float, float]] | None = None,
                               frequency_range: tuple[float, float] | None = None,
                               fallback_coherence_min: float | None = None,
@@ -1103,7 +1103,8 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
         the free-parameter vector. Default: frequency-domain equation error when every state
         is measured, else the structure's values.
     coherence_min, n_points, ranges, frequency_range, fallback_coherence_min
-        Point selection, see :func:`select_fit_data` (defaults 0.6 and 20, no fallback). Without
+        Point selection, see :func:`select_fit_data` (defaults: the structure's
+        ``coherence_min``, else 0.6, and 20, no fallback). Without
         ``frequency_range`` the structure's own validity band (``frequency_range`` in its TOML
         file, e.g. below the rotor modes for a quasi-steady model) limits every pair.
     reduce : bool
@@ -1156,6 +1157,8 @@ def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pai
         frequency_range = (structure.attrs["fit_omega_min"], structure.attrs["fit_omega_max"])
     if pairs is None:
         pairs = structure.attrs.get("fit_pairs")  # the structure's own, else the paper's
+    if coherence_min is None:
+        coherence_min = float(structure.attrs.get("fit_coherence_min", COHERENCE_MIN))
     selection = dict(pairs=pairs, coherence_min=coherence_min, n_points=n_points,
                      ranges=ranges, frequency_range=frequency_range,
                      fallback_coherence_min=fallback_coherence_min)

@@ -29,7 +29,6 @@ import numpy as np
 import xarray as xr
 
 from sysid.core.errors import InputDataError
-from sysid.core.guidelines import COHERENCE_MIN
 from sysid.core.util import Progress
 from sysid.data.campaign import CampaignData
 from sysid.identify.frequency_domain import (N_POINTS, FrequencyFitResult,
@@ -137,7 +136,7 @@ def _record_responses(model: xr.Dataset, data: CampaignData) -> None:
 
 def fit_frequency_domain(data: CampaignData, *, structure: str = "hover_6dof",
                          start: str = "auto", pairs=None,
-                         coherence_min: float = COHERENCE_MIN, n_points: int = N_POINTS,
+                         coherence_min: float | None = None, n_points: int = N_POINTS,
                          fallback_coherence_min: float | None = None,
                          frequency_range: tuple[float, float] | None = None,
                          reduce: bool = True, seed: int = 0,

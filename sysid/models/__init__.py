@@ -14,8 +14,8 @@ from sysid.models.simulation import discretize, propagate, simulate
 from sysid.models.structure import (ALL_ROWS, DELAY_BOUNDS, FORCE_STATES, LinearStructure,
                                     Parameter, model_from_dataset, six_dof_structure,
                                     structure_summary)
-from sysid.models.toml import (STRUCTURES_DIR, builtin_structures, load_structure,
-                               structure_from_dict, structure_path)
+from sysid.models.toml import (STRUCTURES_DIR, builtin_structures, declared_coherence_min,
+                               load_structure, structure_from_dict, structure_path)
 
 __all__ = [
     "Parameter",
@@ -24,6 +24,7 @@ __all__ = [
     "structure_from_dict",
     "load_structure",
     "structure_path",
+    "declared_coherence_min",
     "builtin_structures",
     "model_from_dataset",
     "model_matrices",

@@ -29,7 +29,7 @@ from sysid.models.structure import (DELAY_BOUNDS, LinearStructure, Parameter, en
                                     parse_delay_entry)
 
 __all__ = ["structure_from_dict", "load_structure", "structure_path", "builtin_structures",
-           "STRUCTURES_DIR", "ACCELEROMETER_ROWS"]
+           "declared_coherence_min", "STRUCTURES_DIR", "ACCELEROMETER_ROWS"]
 
 #: Folder of the built-in TOML structures.
 STRUCTURES_DIR = Path(__file__).resolve().parent / "structures"
@@ -68,6 +68,8 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
                                            # is valid (its frequency-domain fit's band)
         pairs = ["q/lon", "p/lat"]         # optional: "output/input" responses its
                                            # frequency-domain fit uses; default the paper's
+        coherence_min = 0.4                # optional: that fit's coherence admission;
+                                           # default the guideline's 0.6
 
         [kinematics]                       # fixed rigid-body terms in A (6-DoF states only)
         theta0 = "trim"                    # deg; "trim" = from the data's trim_theta
@@ -145,8 +147,8 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
             raise InputDataError(f"structure {source}: [{table}] must be a table, got "
                                  f"{spec[table]!r}")
     known_tables = {"name", "description", "states", "inputs", "outputs", "kinematics", "trim",
-                    "frequency_range", "pairs", "process_noise", "output_equations",
-                    "sensors", "A", "B", "C", "D", "delays"}
+                    "frequency_range", "pairs", "coherence_min", "process_noise",
+                    "output_equations", "sensors", "A", "B", "C", "D", "delays"}
     extra = set(spec) - known_tables
     if extra:
         raise InputDataError(f"structure {source}: unknown keys {sorted(extra)}; "
@@ -202,6 +204,9 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
                                  f"names with an output of {outputs} and an input of "
                                  f"{inputs}; got {bad or pairs}")
         attrs["fit_pairs"] = ",".join(pairs)
+    gate = _coherence_min(spec, source)
+    if gate is not None:
+        attrs["fit_coherence_min"] = gate
     if "process_noise" in spec:
         noisy = _names(spec["process_noise"], f"structure {source}: process_noise")
         unknown = [s for s in noisy if s not in states]
@@ -396,6 +401,25 @@ def structure_path(source: str | Path) -> Path:
     return path
 
 
+def _coherence_min(spec: Mapping, source: str) -> float | None:
+    """The structure's ``coherence_min`` (checked), None when it declares none."""
+    if "coherence_min" not in spec:
+        return None
+    # a structure may need points a 0.6 admission leaves out (W_gamma weighs them down)
+    gate = _number(spec["coherence_min"], f"structure {source}: coherence_min")
+    if not 0.0 < gate <= 1.0:
+        raise InputDataError(f"structure {source}: coherence_min must lie in (0, 1], got "
+                             f"{gate}")
+    return gate
+
+
+def declared_coherence_min(source: str | Path) -> float | None:
+    """The coherence admission a structure file declares for its frequency-domain fit
+    (TOML ``coherence_min``), None when it declares none; read without a trim."""
+    path = structure_path(source)
+    return _coherence_min(_read(path), str(path))
+
+
 def load_structure(source: str | Path, *, trim: Mapping[str, float] | None = None
                    ) -> LinearStructure:
     """A structure from a TOML file, or a built-in one by name (e.g. ``"hover_6dof"``).
@@ -403,6 +427,11 @@ def load_structure(source: str | Path, *, trim: Mapping[str, float] | None = Non
     See :func:`structure_from_dict` for the format and the meaning of ``trim``.
     """
     path = structure_path(source)
+    return structure_from_dict(_read(path), trim=trim, source=str(path))
+
+
+def _read(path: Path) -> dict:
+    """The parsed TOML of a structure file, with errors that name it."""
     try:
         spec = tomllib.loads(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError as exc:
@@ -412,4 +441,4 @@ def load_structure(source: str | Path, *, trim: Mapping[str, float] | None = Non
         raise InputDataError(f"structure file {path}: invalid TOML: {exc}") from None
     except OSError as exc:
         raise InputDataError(f"structure file {path}: cannot be read ({exc})") from None
-    return structure_from_dict(spec, trim=trim, source=str(path))
+    return spec

@@ -60,7 +60,7 @@ from sysid.data.netcdf import group_attrs, read_campaign, update_campaign_groups
 from sysid.flight_test.campaign import (Campaign, default_campaign, run_campaign,
                                        with_calm_sweeps)
 from sysid.identify.stages import fit_filter_error, fit_frequency_domain, fit_time_domain
-from sysid.models import structure_path
+from sysid.models import declared_coherence_min, structure_path
 from sysid.report.html import write_report
 from sysid.spectral.cross_control import campaign_summary
 from sysid.spectral.response import (NO_TRANSIENT_GROUP, frequency_response,
@@ -121,9 +121,10 @@ class StudySettings:
     seed: int = 20261121
     noise: bool = True
     structure: str = "hover_6dof"
-    #: Coherence admitting frequency points to the study's frequency-domain fit; None: by
-    #: flight condition, :data:`FD_COHERENCE_MIN_HOVER` in hover and
-    #: :data:`FD_COHERENCE_MIN_FORWARD` in forward flight (see there).
+    #: Coherence admitting frequency points to the study's frequency-domain fit; None: the
+    #: structure's own (TOML ``coherence_min``), else by flight condition,
+    #: :data:`FD_COHERENCE_MIN_HOVER` in hover and :data:`FD_COHERENCE_MIN_FORWARD` in
+    #: forward flight (see there).
     fd_coherence_min: float | None = None
     time_domain_maneuvers: str = "3211_*"
     #: The time-domain part's estimator (:data:`TIME_DOMAIN_METHODS`): ``"filter_error"``
@@ -166,6 +167,9 @@ class StudySettings:
         """The coherence admission the frequency-domain fit uses (resolves None)."""
         if self.fd_coherence_min is not None:
             return float(self.fd_coherence_min)
+        declared = declared_coherence_min(self.structure)
+        if declared is not None:
+            return declared
         if self.airspeed_kt < FORWARD_FLIGHT_KT:
             return FD_COHERENCE_MIN_HOVER
         return FD_COHERENCE_MIN_FORWARD
