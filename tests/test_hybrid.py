@@ -383,12 +383,17 @@ def test_time_domain_hybrid_meets_the_targets_it_meets(hybrid_td, hybrid_fd, hyb
 @pytest.mark.slow
 @pytest.mark.skipif(os.environ.get("SYSID_EXHAUSTIVE") != "1",
                     reason="the 38-parameter output-error fit (see above); SYSID_EXHAUSTIVE=1")
+@pytest.mark.xfail(strict=True, reason="output error's N_r is 30 % off the truth (-0.364 "
+                   "against -0.279), and the frequency domain's, at -0.292 since hover_hybrid "
+                   "admits coherence 0.4, no longer meets it halfway; filter error, the "
+                   "default, agrees within 15 % (test_filter_error_hybrid_meets_the_targets)")
 def test_time_domain_hybrid_yaw_damping_agrees_with_the_frequency_domain(hybrid_td,
                                                                         hybrid_fd):
-    """The two domains' N_r within 15 % of each other (issue 22). Narrowly: 15.4 % apart
-    (FD -0.308, TD -0.364; docs/notes/2026-11-26-profile-likelihood.md) until the
-    simulation's zero-order hold was divided out of the responses, about 14.6 % since
-    (docs/notes/2026-11-27-zero-order-hold.md)."""
+    """The frequency domain's and output error's N_r within 15 % of each other (issue 22).
+    15.4 % apart (FD -0.308, TD -0.364; docs/notes/2026-11-26-profile-likelihood.md) until
+    the simulation's zero-order hold was divided out of the responses, about 14.6 % then
+    (docs/notes/2026-11-27-zero-order-hold.md), 19.8 % since the FD fit admits coherence 0.4
+    (FD -0.292; docs/notes/2026-11-27-hybrid-coherence-admission.md)."""
     td, fd = _figures(hybrid_td.model), _figures(hybrid_fd.model)
     assert _error(fd["N_r"], td["N_r"]) <= DERIVATIVE_TOL, (fd["N_r"], td["N_r"])
 
