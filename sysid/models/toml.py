@@ -197,8 +197,8 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
     if "pairs" in spec:
         # the responses the structure is fitted to, where they differ from the paper's
         pairs = _names(spec["pairs"], f"structure {source}: pairs")
-        bad = [p for p in pairs if len(p.split("/")) != 2 or p.split("/")[0] not in outputs
-               or p.split("/")[1] not in inputs]
+        bad = [p for p, (o, _, i) in zip(pairs, (p.partition("/") for p in pairs))
+               if o not in outputs or i not in inputs]
         if bad or not pairs or len(set(pairs)) != len(pairs):
             raise InputDataError(f"structure {source}: pairs must be distinct 'output/input' "
                                  f"names with an output of {outputs} and an input of "
