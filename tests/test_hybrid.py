@@ -175,33 +175,46 @@ TIED = {"states": ["u", "w", "q", "theta", "a1", "b1"], "inputs": ["lon", "col"]
               "a1,a1": {"value": -14.0, "also": ["b1,b1"]},
               "a1,b1": {"value": 1.0, "also": [["b1,a1", -1.0]]},
               "u,theta": {"value": -32.17, "free": False}, "q,u": 0.1},
-        "B": {"a1,lon": 2.0, "Z_col": -0.7, "b1,col": 0.3}}
+        "B": {"a1,lon": 2.0, "Z_col": {"value": -0.7, "also": [["q,col", -0.4]]},
+              "b1,col": 0.3}}
 
 
 def _tied_and_untied():
     tied = structure_from_dict(TIED, source="tied")
-    spec = {**TIED, "A": {**TIED["A"], "a1,a1": -14.0, "b1,b1": -14.0, "a1,b1": 1.0}}
+    spec = {**TIED, "A": {**TIED["A"], "a1,a1": -14.0, "b1,b1": -14.0, "a1,b1": 1.0},
+            "B": {**TIED["B"], "Z_col": -0.7, "q,col": 0.28}}
     spec["A"]["b1,a1"] = -1.0
     return tied, structure_from_dict(spec, source="untied")
 
 
 def test_a_tied_parameter_sets_every_entry_with_its_scale():
-    """``also`` puts one value on several A entries; a tie onto an entry another parameter
-    sets is refused; the model Dataset keeps the tie (round trip)."""
+    """``also`` puts one value on several A (or several B) entries; a tie onto an entry
+    another parameter sets, or onto another matrix's entry, is refused; the model Dataset
+    keeps the tie (round trip)."""
     with pytest.raises(InputDataError, match="both set"):
         structure_from_dict({**TIED, "A": {**TIED["A"], "b1,a1": 0.5}}, source="clash")
+    with pytest.raises(InputDataError, match="both set"):
+        structure_from_dict({**TIED, "B": {**TIED["B"], "q,col": 0.5}}, source="clash")
+    with pytest.raises(InputDataError, match="among the inputs"):  # an A entry on a B tie
+        structure_from_dict({**TIED, "B": {**TIED["B"], "Z_col": {
+            "value": -0.7, "also": ["q,u"]}}}, source="bad")
     tied, untied = _tied_and_untied()
     assert "A[b1,b1]" not in tied.parameter_names and "A[b1,a1]" not in tied.parameter_names
+    assert "M_col" not in tied.parameter_names and "M_col" in untied.parameter_names
     theta = tied.theta0 * 1.3
-    A = tied.matrices(theta)[0]
+    A, B = tied.matrices(theta)[:2]
     st = list(tied.states)
-    a1, b1 = st.index("a1"), st.index("b1")
+    a1, b1, q, w = st.index("a1"), st.index("b1"), st.index("q"), st.index("w")
     k = list(tied.free_names)
     assert A[a1, a1] == A[b1, b1] == theta[k.index("A[a1,a1]")]
     assert A[a1, b1] == -A[b1, a1] == theta[k.index("A[a1,b1]")]
+    col = list(tied.inputs).index("col")
+    assert B[w, col] == theta[k.index("Z_col")] and B[q, col] == -0.4 * B[w, col]
     back, values = model_from_dataset(tied.to_dataset(theta))
     np.testing.assert_array_equal(back.matrices(values)[0], A)
+    np.testing.assert_array_equal(back.matrices(values)[1], B)
     assert back.parameter("A[a1,b1]").also == (("b1", "a1", -1.0),)
+    assert back.parameter("Z_col").also == (("q", "col", -0.4),)
     # start values from a model whose two entries differ: their mean (over the scale)
     other = tied.to_dataset(theta)
     other["A"].values[b1, b1] += 2.0
@@ -242,6 +255,8 @@ def test_tied_sensitivities_are_the_sums_of_the_untied_ones():
                                + J["untied"]["A[b1,b1]"], rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(J["tied"]["A[a1,b1]"], J["untied"]["A[a1,b1]"]
                                - J["untied"]["A[b1,a1]"], rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(J["tied"]["Z_col"], J["untied"]["Z_col"]
+                               - 0.4 * J["untied"]["M_col"], rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(J["tied"]["M_a1"], J["untied"]["M_a1"], rtol=1e-12)
 
 

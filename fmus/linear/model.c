@@ -87,6 +87,16 @@ FmuStatus model_initialize(ModelInstance *comp) {
             d->tau[row] = value;
         }
     }
+    for (k = 0; k < N_TIE; k++) { /* the further entries of tied parameters */
+        double value = TIE_SCALE[k] * R(comp, VR_PAR0 + TIE_PAR[k]);
+        int row = TIE_ROW[k], col = TIE_COL[k];
+        switch (TIE_MATRIX[k]) {
+        case MATRIX_A: A[row][col] += value; break;
+        case MATRIX_B: B[row][col] += value; break;
+        case MATRIX_C: C[row][col] += value; break;
+        default: D[row][col] += value; break;
+        }
+    }
 
     /* Change of units to the FMU's: x_fmu = X_SCALE x, y_fmu = Y_SCALE y (inputs stay %). */
     for (i = 0; i < N_X; i++) {

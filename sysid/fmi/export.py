@@ -52,6 +52,7 @@ from sysid.fmi.build import (COMMON_HEADERS, FMI_HEADERS, compile_shared_library
 from sysid.fmi.description import (FMI_VERSIONS, FmuDescription, ScalarVariable,
                                    UnitDefinition, boilerplate_sources, build_description,
                                    c_string, model_description, variables_header)
+from sysid.models import parse_tied_entries
 
 __all__ = ["export_fmu", "ExportSpec", "export_spec", "DEFAULT_STEP", "DEFAULT_PADE_ORDER",
            "ME_DELAY_MODES"]
@@ -136,6 +137,8 @@ class ExportSpec:
     y_scale: np.ndarray
     descriptions: dict = field(default_factory=dict)
     attrs: dict = field(default_factory=dict)
+    #: further entries of tied parameters: (parameter index, matrix, row, column, scale)
+    ties: list[tuple[int, str, int, int, float]] = field(default_factory=list)
 
     @property
     def entry_group(self) -> np.ndarray:
@@ -203,6 +206,7 @@ def export_spec(model: xr.Dataset, name: str | None = None) -> ExportSpec:
     groups: list[tuple[int, int, list[int]]] = []
     descriptions: dict[str, str] = {}
     covered = np.zeros_like(B, dtype=bool)
+    ties: list[tuple[int, str, int, int, float]] = []
     if "parameter" in model.dims and "matrix" in model:
         pnames = [str(p) for p in model["parameter"].values]
         values = _finite(model["value"].values, "value", pnames)
@@ -240,6 +244,15 @@ def export_spec(model: xr.Dataset, name: str | None = None) -> ExportSpec:
                 r = rows_ax.index(row)
                 fixed[matrix][r, c] -= value
                 parameters.append((pname, matrix, r, c, value))
+                text = model["also"].values[k] if "also" in model else ""
+                for trow, tcol, scale in parse_tied_entries(text or ""):
+                    if trow not in rows_ax or tcol not in cols_ax:
+                        raise InputDataError(f"cannot export the model: parameter {pname!r} "
+                                             f"also sets {matrix}[{trow},{tcol}], which the "
+                                             f"model does not have")
+                    r2, c2 = rows_ax.index(trow), cols_ax.index(tcol)
+                    fixed[matrix][r2, c2] -= scale * value
+                    ties.append((len(parameters) - 1, matrix, r2, c2, scale))
             descriptions[pname] = _parameter_description(model, k, matrix, row, col)
     # Delays that no parameter covers (e.g. a hand-made Dataset): one group per input and
     # delay value, exposed as a parameter tau_<input>[_<n>].
@@ -258,7 +271,7 @@ def export_spec(model: xr.Dataset, name: str | None = None) -> ExportSpec:
     method = str(model.attrs.get("method", "model"))
     return ExportSpec(
         name=name or f"sysid_{method}", states=states, inputs=inputs, outputs=outputs,
-        A0=fixed["A"], B0=fixed["B"], C0=fixed["C"], D0=fixed["D"], parameters=parameters,
+        A0=fixed["A"], B0=fixed["B"], C0=fixed["C"], D0=fixed["D"], parameters=parameters, ties=ties,
         groups=groups, trim_input=trim_in, trim_output=trim_out, x_scale=x_scale,
         y_scale=y_scale, descriptions=descriptions,
         attrs={k: v for k, v in model.attrs.items() if isinstance(v, (str, int, float))})
@@ -448,6 +461,7 @@ def generate_dims(spec: ExportSpec, variables: list[FmuVariable], pade_order: in
         "#ifndef LINEAR_DIMS_H", "#define LINEAR_DIMS_H", "",
         f"#define N_X {n_x}", f"#define N_U {n_u}", f"#define N_Y {n_y}",
         f"#define N_PAR {len(spec.parameters)}", f"#define N_GROUPS {len(spec.groups)}",
+        f"#define N_TIE {len(spec.ties)}",
         f"#define PADE_ORDER {pade_order if spec.groups else 0}",
         "/* model exchange: delays from the input history (1) or Pade states (0) */",
         f"#define ME_DELAY_BUFFER {1 if me_delay == 'buffer' else 0}", "",
@@ -482,6 +496,13 @@ def generate_tables(spec: ExportSpec) -> str:
            _c_array("PAR_MATRIX", "int", [_MATRIX_CODE[p[1]] for p in spec.parameters]),
            _c_array("PAR_ROW", "int", [p[2] for p in spec.parameters]),
            _c_array("PAR_COL", "int", [p[3] for p in spec.parameters]),
+           "/* tied parameters: parameter TIE_PAR[t] also adds TIE_SCALE[t] times its value to",
+           " * entry (TIE_ROW, TIE_COL) of TIE_MATRIX */",
+           _c_array("TIE_PAR", "int", [t[0] for t in spec.ties]),
+           _c_array("TIE_MATRIX", "int", [_MATRIX_CODE[t[1]] for t in spec.ties]),
+           _c_array("TIE_ROW", "int", [t[2] for t in spec.ties]),
+           _c_array("TIE_COL", "int", [t[3] for t in spec.ties]),
+           _c_array("TIE_SCALE", "double", [t[4] for t in spec.ties]),
            "static const char *const PAR_NAMES[%d] = {\n    %s\n};\n" % (
                max(1, len(spec.parameters)),
                ",\n    ".join([c_string(p[0]) for p in spec.parameters] or ['""'])),

@@ -617,16 +617,15 @@ def equation_error_start(fr: xr.Dataset, structure: LinearStructure, data: FitDa
                 free_delay[(int(r), int(col))] = int(k)
     c_est: dict[tuple[int, int], float] = {}
     b_est: dict[tuple[int, int], float] = {}
-    kA, rA, cA = st._entries["A"]
-    kB, rB, cB = st._entries["B"]
+    # each entry's regressor with its scale (a tied parameter's start: its entry on the
+    # last row that has one, divided by that entry's scale)
+    entries = [(key, int(k), int(r), int(c), float(w)) for key in ("A", "B")
+               for k, r, c, w in zip(*st._entries[key], st._scales[key]) if st.free_mask[k]]
     for i in range(len(states)):
-        regs = [("A", int(k), int(c)) for k, r, c in zip(kA, rA, cA)
-                if r == i and st.free_mask[k]]
-        regs += [("B", int(k), int(c)) for k, r, c in zip(kB, rB, cB)
-                 if r == i and st.free_mask[k]]
+        regs = [(key, k, c, w) for key, k, r, c, w in entries if r == i]
         if not regs:
             continue
-        regs += [("c", k, c) for (r, c), k in free_delay.items() if r == i]
+        regs += [("c", k, c, 1.0) for (r, c), k in free_delay.items() if r == i]
         rows_X, rows_y = [], []
         for m, inp in enumerate(st.inputs):
             if inp not in fr_in:
@@ -645,7 +644,7 @@ def equation_error_start(fr: xr.Dataset, structure: LinearStructure, data: FitDa
             lhs = s * Hk[i] - Afix[i] @ Hk
             lhs = lhs - Bfix[i, m] * (1.0 if delayed else np.exp(-s * tau_fix[i, m]))
             X = np.zeros((ok.sum(), len(regs)), dtype=complex)
-            for col, (kind, k, c) in enumerate(regs):
+            for col, (kind, k, c, _) in enumerate(regs):
                 if kind == "A":
                     X[:, col] = Hk[c]
                 elif kind == "B" and c == m:
@@ -666,14 +665,14 @@ def equation_error_start(fr: xr.Dataset, structure: LinearStructure, data: FitDa
             continue
         sol = np.zeros(len(regs))
         sol[used] = np.linalg.lstsq(Xr[:, used], yr, rcond=None)[0]
-        for col, (kind, k, c) in enumerate(regs):
+        for col, (kind, k, c, w) in enumerate(regs):
             if not used[col]:
                 continue
             if kind == "c":
                 c_est[(i, c)] = sol[col]
                 continue
             par = st.parameters[k]
-            theta[free_pos[k]] = float(np.clip(sol[col], par.lower, par.upper))
+            theta[free_pos[k]] = float(np.clip(sol[col] / w, par.lower, par.upper))
             if kind == "B":
                 b_est[(i, c)] = sol[col]
     # Delays from c = B tau, least squares over the delay's entries.

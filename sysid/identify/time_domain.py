@@ -391,7 +391,8 @@ class OutputErrorModel:
                 self.kind.append(("A", st.states.index(par.row), st.states.index(par.column),
                                   st.entries_of(int(k))))
             elif par.matrix == "B":
-                self.kind.append(("B", st.states.index(par.row), st.inputs.index(par.column)))
+                self.kind.append(("B", st.states.index(par.row), st.inputs.index(par.column),
+                                  st.entries_of(int(k))))
             elif par.matrix == "C":
                 self.kind.append(("C", st.outputs.index(par.row), st.states.index(par.column)))
             elif par.matrix == "D":
@@ -644,9 +645,10 @@ class OutputErrorModel:
                 N, len(a_pos), n).transpose(0, 2, 1)
         extra = []  # C / D parameters act on the output equation
         for j, kind in enumerate(self.kind):
-            if kind[0] == "B":
-                g = _group_of(groups, kind[1], kind[2])
-                W[:, :, j] = np.outer(V[:, g], disc["Psi"][:, kind[1]])
+            if kind[0] == "B":  # every entry of a tied parameter, with its scale
+                for i, c, scale in kind[3]:
+                    g = _group_of(groups, i, c)
+                    W[:, :, j] += scale * np.outer(V[:, g], disc["Psi"][:, i])
             elif kind[0] == "delay":
                 g = next(k for k, gr in enumerate(groups) if gr.free_delay == kind[1])
                 W[:, :, j] = np.outer(dV[:, g] / rec.dt, disc["Gam"][:, g])
@@ -662,9 +664,10 @@ class OutputErrorModel:
         Mf = self.structure.M[self.out_idx]  # output equations: C + M (A - K), D + M B
         if np.any(Mf):
             for j, kind in enumerate(self.kind):
-                entries = kind[3] if kind[0] == "A" else [(kind[1], kind[2], 1.0)]
-                for i, c, scale in entries:
-                    if kind[0] in "AB" and np.any(Mf[:, i]):
+                if kind[0] not in "AB":
+                    continue
+                for i, c, scale in kind[3]:
+                    if np.any(Mf[:, i]):
                         drive = x[:, c] if kind[0] == "A" else rec.U[:, c]
                         S[:, :, j] += scale * np.outer(drive, Mf[:, i])
         return S

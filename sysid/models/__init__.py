@@ -12,8 +12,8 @@ from sysid.models.lti import (frequency_response, model_matrices, residualize_mo
                               transfer_matrix)
 from sysid.models.simulation import discretize, propagate, simulate
 from sysid.models.structure import (ALL_ROWS, DELAY_BOUNDS, FORCE_STATES, LinearStructure,
-                                    Parameter, model_from_dataset, six_dof_structure,
-                                    structure_summary)
+                                    Parameter, model_from_dataset, parse_tied_entries,
+                                    six_dof_structure, structure_summary)
 from sysid.models.toml import (STRUCTURES_DIR, builtin_structures, declared_coherence_min,
                                load_structure, structure_from_dict, structure_path)
 
@@ -27,6 +27,7 @@ __all__ = [
     "declared_coherence_min",
     "builtin_structures",
     "model_from_dataset",
+    "parse_tied_entries",
     "model_matrices",
     "parameter_values",
     "frequency_response",

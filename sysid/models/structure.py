@@ -96,10 +96,11 @@ class Parameter:
         rotor, whose Cramer-Rao bound sits near the guideline only because it trades off
         against a damping derivative.
     also : tuple of (row, column, scale)
-        Further A entries the same parameter sets, each to ``scale * value`` (A parameters
-        only): a physical constant that appears in several equations is one unknown, e.g.
-        one flapping time constant on the a1 and b1 rows. Tying such entries removes a
-        direction the data cannot separate from the fit.
+        Further entries of the same matrix (A or B) the parameter sets, each to
+        ``scale * value``: a physical constant that appears in several equations is one
+        unknown, e.g. one flapping time constant on the a1 and b1 rows, or the tail rotor's
+        thrust in the roll and yaw rows (the scale its arms' ratio). Tying such entries
+        removes a direction the data cannot separate from the fit.
     """
 
     name: str
@@ -222,9 +223,9 @@ class LinearStructure:
                 delayed[r, c] = True
                 self._delay_entries.append((k, r, c))
             else:
-                if par.also and par.matrix != "A":
-                    raise InputDataError(f"parameter {par.name!r}: only A parameters may set "
-                                         f"further entries ('also'), this one is in "
+                if par.also and par.matrix not in ("A", "B"):
+                    raise InputDataError(f"parameter {par.name!r}: only A and B parameters "
+                                         f"may set further entries ('also'), this one is in "
                                          f"{par.matrix}")
                 for i, j, scale in [(int(r[0]), c, 1.0), *self._tied(par)]:
                     key = (par.matrix, i, j)
@@ -245,16 +246,20 @@ class LinearStructure:
         self._check_output_delays()
 
     def _tied(self, par: Parameter) -> list[tuple[int, int, float]]:
-        """``(row index, column index, scale)`` of the further A entries of ``par``."""
+        """``(row index, column index, scale)`` of the further A or B entries of ``par``
+        (rows are states; columns states for A, inputs for B)."""
+        cols = self.states if par.matrix == "A" else self.inputs
         out = []
         for item in par.also:
             try:
                 row, col, scale = item
-                i, j = self.states.index(row), self.states.index(col)
+                i, j = self.states.index(row), cols.index(col)
             except (TypeError, ValueError):
                 raise InputDataError(f"parameter {par.name!r}: further entry {item!r} must be "
-                                     f"(row, column, scale) with row and column among the "
-                                     f"states {list(self.states)}") from None
+                                     f"(row, column, scale) with the row among the states "
+                                     f"{list(self.states)} and the column among the "
+                                     f"{'states' if par.matrix == 'A' else 'inputs'} "
+                                     f"{list(cols)}") from None
             if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale != 0):
                 raise InputDataError(f"parameter {par.name!r}: entry ({row},{col}) has scale "
                                      f"{scale!r}; expected a finite non-zero number")
@@ -503,8 +508,9 @@ class LinearStructure:
             np.add.at(dT, (slice(None), k), (CR[:, r] + Mo[:, r]) * X[:, c]
                       * self._scales["A"])
         k, r, c = self._entries["B"]
-        if len(k):
-            dT[:, k] = (CR[:, r] * E[:, r, c] + Mo[:, r]) * (in_idx[:, None] == c[None, :])
+        if len(k):  # a tied parameter sums over its entries
+            np.add.at(dT, (slice(None), k), (CR[:, r] * E[:, r, c] + Mo[:, r])
+                      * (in_idx[:, None] == c[None, :]) * self._scales["B"])
         k, r, c = self._entries["C"]
         if len(k):
             dT[:, k] = X[:, c] * (out_idx[:, None] == r[None, :])
@@ -594,7 +600,7 @@ class LinearStructure:
         if any(p.also for p in self.parameters):
             ds["also"] = (("parameter",), np.array([_also_text(p.also)
                                                     for p in self.parameters], dtype=object),
-                          {"long_name": "further A entries a tied parameter sets, "
+                          {"long_name": "further A or B entries a tied parameter sets, "
                                         "'row,column*scale' separated by ';'"})
         if self.has_output_equations:
             ds["output_equation"] = (("output", "state_dot"), self.M.copy(), {
@@ -616,7 +622,9 @@ def _also_text(also) -> str:
     return ";".join(f"{r},{c}*{float(s):g}" for r, c, s in also)
 
 
-def _also_parse(text: str) -> tuple:
+def parse_tied_entries(text: str) -> tuple:
+    """``"q,col*-0.4;r,col*1"`` (a model Dataset's ``also``) -> ``(("q", "col", -0.4),
+    ("r", "col", 1.0))``: the further entries a tied parameter sets, with their scales."""
     out = []
     for part in filter(None, str(text).split(";")):
         entry, scale = part.rsplit("*", 1)
@@ -738,7 +746,7 @@ def model_from_dataset(model: xr.Dataset) -> tuple[LinearStructure, np.ndarray]:
                 float(model["value"].values[k]), bool(model["free"].values[k]),
                 float(lower[k]) if lower is not None else -math.inf,
                 float(upper[k]) if upper is not None else math.inf,
-                also=_also_parse(model["also"].values[k]) if "also" in model else ()))
+                also=parse_tied_entries(model["also"].values[k]) if "also" in model else ()))
     M = K = None
     if "output_equation" in model:
         M = model["output_equation"].sel(output=outputs, state_dot=states).values.astype(float)

@@ -107,9 +107,10 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
 
     A/B entries on the 6-DoF force rows get derivative names (``"q,u"`` -> ``M_u``); other
     entries are named ``A[row,column]``. Entries not listed are fixed at the fixed part
-    (kinematics for A, zero otherwise). ``also`` (A only) ties further entries to the same
-    parameter, each ``"row,column"`` (same value) or ``["row,column", scale]`` (``scale``
-    times the value): one physical constant in several equations is one unknown.
+    (kinematics for A, zero otherwise). ``also`` (A and B) ties further entries of the same
+    matrix to the parameter, each ``"row,column"`` (same value) or ``["row,column", scale]``
+    (``scale`` times the value): one physical constant in several equations is one unknown,
+    e.g. the tail rotor's thrust in the roll and yaw rows (``scale`` from its arms).
 
     Outputs that are not states need an output equation: ``ax ay az`` have a built-in one,
     the body-axis specific force at the accelerometer (ft/s^2, gravity excluded): the
@@ -331,12 +332,12 @@ def _output_equations(spec: Mapping, states, inputs, outputs, source: str):
 
 def _also(value, matrix: str, where: str) -> tuple:
     """``also = ["b1,b1", ["b1,a1", -1.0]]`` -> ``(("b1", "b1", 1.0), ("b1", "a1", -1.0))``."""
-    expected = ('a list of "row,column" or ["row,column", scale] (A entries the parameter '
-                'also sets)')
+    expected = ('a list of "row,column" or ["row,column", scale] (entries of the same '
+                'matrix the parameter also sets)')
     if not isinstance(value, list):
         raise InputDataError(f"{where} = {value!r}: expected {expected}")
-    if value and matrix != "A":
-        raise InputDataError(f"{where}: only [A] parameters may set further entries")
+    if value and matrix not in ("A", "B"):
+        raise InputDataError(f"{where}: only [A] and [B] parameters may set further entries")
     out = []
     for item in value:
         entry, scale = (item, 1.0) if isinstance(item, str) else (

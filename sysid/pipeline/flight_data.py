@@ -155,7 +155,8 @@ def measured_structure(structure: str | Path, outputs: Sequence[str]) -> dict:
         probe = structure_from_dict({**{k: v for k, v in spec.items() if k != "pairs"},
                                      "outputs": states, "delays": {}},
                                     trim={"theta": 0.0, "phi": 0.0}, source=str(path))
-        entries = {(p.row, p.column) for p in probe.parameters if p.matrix == "B"}
+        entries = {e for p in probe.parameters if p.matrix == "B"
+                   for e in [(p.row, p.column), *((r, c) for r, c, _ in p.also)]}
         delays = {}
         for name, item in dict(spec.get("delays", {})).items():
             item = dict(item) if isinstance(item, Mapping) else {"entry": item}
