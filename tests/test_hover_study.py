@@ -20,6 +20,10 @@ import xarray as xr
 
 from browser import chromium  # noqa: F401  (pytest fixture)
 
+from sysid.core.errors import InputDataError
+from sysid.flight_test.campaign import default_campaign
+from sysid.pipeline.study import StudySettings, campaign_from_file
+
 pytestmark = pytest.mark.fmu
 
 ON_AXIS = (("q", "lon"), ("p", "lat"), ("w", "col"), ("r", "ped"))
@@ -369,3 +373,18 @@ def test_report_opens_in_a_browser_with_every_figure(study, chromium):  # noqa: 
     assert len(numbers) > 100
     artifacts = Path(__file__).resolve().parent.parent / "test-artifacts"
     chromium.screenshot(report, artifacts / "hover_report.png", size=(1280, 3000))
+
+
+def test_a_campaign_file_takes_the_study_s_seed_and_noise_and_must_match_its_airspeed(
+        tmp_path):
+    # `sysid run hover --campaign FILE --seed 3` flies the file's campaign with seed 3 (the
+    # seed was silently the file's before); --no-noise switches its noise off; a file at
+    # another airspeed than the study's is refused, naming both.
+    path = tmp_path / "mine.toml"
+    path.write_text(default_campaign(0.0, seed=1).to_toml())
+    assert campaign_from_file(path, StudySettings()).seed == 1
+    flown = campaign_from_file(path, StudySettings(seed=3, noise=False))
+    assert flown.seed == 3 and flown.noise == {} and flown.turbulence == 0.0
+    assert campaign_from_file(path, StudySettings(seed=3)).turbulence == 0.3
+    with pytest.raises(InputDataError, match="flies at 0 kt, the study is at 80 kt"):
+        campaign_from_file(path, StudySettings(airspeed_kt=80.0))

@@ -46,7 +46,9 @@ def register(subparsers) -> None:
     p.add_argument("--speed", type=float, default=None, help="airspeed, kt")
     p.add_argument("--structure", default=None, help="model structure (TOML or built-in)")
     p.add_argument("--campaign", default=None, help="campaign TOML instead of the built-in")
-    p.add_argument("--seed", type=int, default=20261121, help="campaign seed")
+    p.add_argument("--seed", type=int, default=None,
+                   help="campaign seed (default: the built-in campaign's, or the one in "
+                        "--campaign's file)")
     p.add_argument("--no-noise", action="store_true", help="no sensor noise or turbulence")
     p.add_argument("--calm-sweeps", action="store_true",
                    help="fly the sweeps in calm air (the other manoeuvres keep the "

@@ -44,14 +44,14 @@ import hashlib
 import json
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Mapping, TextIO
 
 import xarray as xr
 
 import sysid
-from sysid.core.errors import SysidError
+from sysid.core.errors import InputDataError, SysidError
 from sysid.core.guidelines import COHERENCE_MIN
 from sysid.core.units import CONTROLS, STATES_6DOF
 from sysid.core.util import Progress, blas_threads
@@ -76,7 +76,7 @@ from sysid.truth import build_fmu
 __all__ = ["FORWARD_FLIGHT_KT", "FD_COHERENCE_MIN_HOVER", "FD_COHERENCE_MIN_FORWARD",
            "StudySettings", "PARTS", "METHODS", "TIME_DOMAIN_METHODS", "TIME_DOMAIN_AUTO",
            "QUICK_OMITS", "run_study", "study_tree",
-           "structure_for"]
+           "structure_for", "campaign_from_file"]
 
 #: From this airspeed (kt) up the forward-flight structure and coherence admission are used.
 FORWARD_FLIGHT_KT = 30.0
@@ -113,12 +113,30 @@ def structure_for(airspeed_kt: float) -> str:
     return "hover_6dof" if airspeed_kt < FORWARD_FLIGHT_KT else "forward_6dof"
 
 
+
+def campaign_from_file(path: str | Path, settings: "StudySettings") -> Campaign:
+    """A campaign TOML flown as ``settings`` ask: their seed (when given) replaces the
+    file's, ``noise=False`` switches its sensor noise and turbulence off; its airspeed must
+    be the study's (the structure, the coherence admission and the report follow it)."""
+    campaign = Campaign.from_toml(path)
+    if settings.seed is not None:
+        campaign = replace(campaign, seed=int(settings.seed))
+    if not settings.noise:
+        campaign = replace(campaign, noise={}, turbulence=0.0)
+    if abs(float(campaign.airspeed_kt) - float(settings.airspeed_kt)) > 1e-9:
+        raise InputDataError(f"campaign file {path}: it flies at {campaign.airspeed_kt:g} kt, "
+                             f"the study is at {settings.airspeed_kt:g} kt; give the "
+                             f"matching study or --speed {campaign.airspeed_kt:g}")
+    return campaign
+
 @dataclass
 class StudySettings:
     """What to run; every field enters the cache keys of the stages that use it."""
 
     airspeed_kt: float = 0.0
-    seed: int = 20261121
+    #: Campaign seed; None: the campaign file's own, or the built-in campaign's default.
+    seed: int | None = None
+    #: Sensor noise and turbulence (off: the campaign, built-in or file, flies without).
     noise: bool = True
     structure: str = "hover_6dof"
     #: Coherence admitting frequency points to the study's frequency-domain fit; None: the
@@ -253,10 +271,11 @@ class _Study:
         self.open(out_dir, settings, quiet=quiet, log=log)
         self.fmu_path = build_fmu()
         if settings.campaign_file:
-            self.campaign = Campaign.from_toml(settings.campaign_file)
+            self.campaign = campaign_from_file(settings.campaign_file, settings)
         else:
+            seed = {} if settings.seed is None else {"seed": settings.seed}
             self.campaign = default_campaign(settings.airspeed_kt, noise=settings.noise,
-                                             seed=settings.seed)
+                                             **seed)
         if settings.calm_sweeps:
             self.campaign = with_calm_sweeps(self.campaign)
         # (quick enters only when set, so that full studies keep their cache keys)
