@@ -204,6 +204,25 @@ def test_gain_and_noise_against_the_truth_and_innovations_white():
     assert np.max(oe.coloured.cramer_rao / oe.statistics.cramer_rao) > 1.5
 
 
+def test_noise_starts_screened_in_processes_give_the_same_fit(monkeypatch):
+    """The noise starts screened side by side in child processes: the same bits as in turn
+    in this process (every start is a fit of its own, one BLAS thread), and the children's
+    CPU counted in the fit's."""
+    st = structure()
+    recs = records(1, rate_gain=RATE_GAIN)
+    fits = {}
+    for procs in ("1", "2"):
+        monkeypatch.setenv("SYSID_FIT_PROCESSES", procs)
+        fits[procs] = identify_filter_error(recs, st, start=st.theta0)
+    one, two = fits["1"], fits["2"]
+    assert one.cost == two.cost
+    np.testing.assert_array_equal(one.theta, two.theta)
+    np.testing.assert_array_equal(one.statistics.cramer_rao, two.statistics.cramer_rao)
+    assert one.model.attrs["noise_starts"] == two.model.attrs["noise_starts"]
+    assert one.cpu_elsewhere == 0.0 and two.cpu_elsewhere > 0.0
+    assert two.cpu_time > two.cpu_elsewhere
+
+
 def test_analytic_sensitivities_match_central_differences():
     """The innovation sensitivities of the solver and the bounds (predictor sensitivity
     equations, Riccati derivative from a Lyapunov equation) against central differences of

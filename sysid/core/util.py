@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sysid.core.errors import IdentificationError
+from sysid.core.errors import IdentificationError, InputDataError
 
 
 @contextlib.contextmanager
@@ -170,6 +170,45 @@ class Progress:
         if not self.quiet:
             self.stream.write("\n")
             self.stream.flush()
+
+
+#: Modules the forkserver imports once, before it forks any child: the callables that
+#: :func:`forkserver_context`'s pools run (the report's figures, filter error's screening),
+#: so that a child starts in milliseconds instead of importing them again.
+FORKSERVER_PRELOAD = ("sysid.report.plots", "sysid.identify.filter_error")
+
+
+def forkserver_context():
+    """The ``forkserver`` multiprocessing context (a clean child, not a fork of a process
+    that may hold threads), its server preloading :data:`FORKSERVER_PRELOAD` when this is
+    its first use."""
+    import multiprocessing
+
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(list(FORKSERVER_PRELOAD))
+    return context
+
+
+def worker_processes(variable: str, maximum: int) -> int:
+    """How many worker processes a parallel step may start: the environment ``variable``
+    when set, else the usable cores up to ``maximum``; 1 inside a daemonic process (a Dask
+    worker), which may not start children. Raises InputDataError for a non-integer
+    setting."""
+    import multiprocessing
+
+    value = os.environ.get(variable)
+    if value:
+        try:
+            return max(1, int(value))
+        except ValueError:
+            raise InputDataError(f"{variable} must be an integer, got {value!r}") from None
+    if multiprocessing.current_process().daemon:
+        return 1
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(cores, maximum))
 
 
 def blas_threads(default: int = 1):

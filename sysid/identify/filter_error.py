@@ -85,6 +85,7 @@ BIT 15, 1975.
 
 from __future__ import annotations
 
+import concurrent.futures
 import json
 import math
 import time
@@ -97,7 +98,7 @@ import scipy.optimize
 import xarray as xr
 
 from sysid.core.errors import IdentificationError, InputDataError
-from sysid.core.util import blas_threads
+from sysid.core.util import blas_threads, forkserver_context, worker_processes
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters, ParameterStatistics,
                                       add_corrected_bounds, coloured_residual_covariance,
                                       parameter_rows, parameter_statistics)
@@ -111,7 +112,7 @@ from sysid.identify.time_domain import (COST_SETTLED, MAX_COST_INCREASE, SOLVE_S
 from sysid.models import LinearStructure, discretize, propagate
 
 __all__ = ["FilterErrorResult", "identify_filter_error", "process_noise_states",
-           "WHITENESS_LAGS", "NOISE_STARTS", "SCREEN_PASSES"]
+           "WHITENESS_LAGS", "NOISE_STARTS", "SCREEN_PASSES", "MAX_SCREEN_PROCESSES"]
 
 #: Lags (samples) at which the whiteness of the innovations is reported.
 WHITENESS_LAGS = 10
@@ -136,6 +137,10 @@ NOISE_STARTS = ((0.01, 10.0), (0.1, 100.0), (0.01, 1.0), (1.0, 10.0))
 #: start's L was within 0.4 of where it converged on the campaigns of the note above, bar
 #: slow tails that ended at the lowest L anyway).
 SCREEN_PASSES = 2
+#: Processes that screen the noise starts side by side (``SYSID_FIT_PROCESSES`` overrides;
+#: the usable cores up to this, 1 in a Dask worker): each start is a fit of its own, the
+#: same bits in any process (docs/notes/2026-11-27-filter-error-parallel-screening.md).
+MAX_SCREEN_PROCESSES = 4
 #: The first relaxation pass of a fit from scratch solves at the start's innovation
 #: covariance, which the next pass replaces: it stops where less than this (L units, 100
 #: COST_SETTLED) of further decrease is predicted instead of SOLVE_SETTLED. On eight hover
@@ -191,7 +196,8 @@ class FilterErrorResult(FitResultParameters):
         Relaxation passes (LM solve, ``Sigma`` update).
     n_cost_evaluations : int
     cpu_time : float
-        CPU seconds of the fit (``time.process_time``), the reduction's refits included.
+        CPU seconds of the fit (``time.process_time``), the reduction's refits and the noise
+        starts screened in other processes included.
     reduction : ReductionResult or None
         The model reduction's steps (``reduce=True``).
     noise_and_nuisance : ndarray
@@ -220,6 +226,8 @@ class FilterErrorResult(FitResultParameters):
     coloured: ColouredBounds | None = None
     reduction: ReductionResult | None = None
     noise_and_nuisance: np.ndarray | None = None
+    #: CPU (s) of the noise starts screened in other processes (in ``cpu_time`` too)
+    cpu_elsewhere: float = 0.0
 
     @property
     def J(self) -> float:
@@ -809,7 +817,8 @@ def identify_filter_error(records, structure: LinearStructure, *,
         Noise start values of the first fit, as factors of the default ones (``Q`` and ``R``);
         each is relaxed for :data:`SCREEN_PASSES` passes and the one with the lowest ``L``
         converged (the likelihood has local minima that differ in how the noise is split
-        between process and measurement; :data:`NOISE_STARTS`).
+        between process and measurement; :data:`NOISE_STARTS`), side by side in up to
+        :data:`MAX_SCREEN_PROCESSES` processes (``SYSID_FIT_PROCESSES``).
     progress : Progress, optional
         A line per start and per reduction step.
 
@@ -844,7 +853,7 @@ def identify_filter_error(records, structure: LinearStructure, *,
         full = _best_start(records, structure, start=start, noise_starts=noise_starts,
                            progress=progress, **kw)
         if not reduce:
-            full.cpu_time = time.process_time() - cpu0
+            full.cpu_time = time.process_time() - cpu0 + full.cpu_elsewhere
             full.model.attrs["cpu_time_s"] = full.cpu_time
             return full
 
@@ -862,7 +871,7 @@ def identify_filter_error(records, structure: LinearStructure, *,
     final: FilterErrorResult = reduction.final.payload
     final.reduction = reduction
     final.full_statistics = full.statistics
-    final.cpu_time = time.process_time() - cpu0
+    final.cpu_time = time.process_time() - cpu0 + full.cpu_elsewhere
     final.model.attrs.update({
         "reduction": 1, "cpu_time_s": final.cpu_time,
         "reduction_steps": json.dumps([step.as_dict() for step in reduction.steps]),
@@ -886,27 +895,53 @@ def _best_start(records, structure, *, start, noise_starts, progress, **kw):
         return best
     screen = {**kw, "max_passes": min(SCREEN_PASSES, kw["max_passes"]), "screen": True}
     fits, errors = [], []
-    for q, r in noise_starts:
-        try:
-            fit = _fit(records, structure, start=start, noise_start=(q, r), **screen)
-        except IdentificationError as exc:  # no stabilising predictor from this start
-            errors.append(exc)
+    screened, elsewhere = _screened(records, structure, start, noise_starts, screen)
+    for (q, r), got in zip(noise_starts, screened):
+        if isinstance(got, IdentificationError):  # no stabilising predictor from this start
+            errors.append(got)
             fits.append(None)
             continue
-        fits.append(fit)
+        fits.append(got)
         if progress is not None:
             progress.message(f"[sysid] filter error: noise start Q x {q:g}, R x {r:g}: "
-                             f"L = {fit.cost:.3f} after {fit.passes} passes "
-                             f"({fit.cpu_time:.1f} s)")
+                             f"L = {got.cost:.3f} after {got.passes} passes "
+                             f"({got.cpu_time:.1f} s)")
     done = [f for f in fits if f is not None]
     if not done:
         raise errors[0]
     chosen = min(done, key=lambda f: f.cost)
     best = _fit(records, structure, start=chosen.theta, warm=chosen.noise_and_nuisance, **kw)
+    best.cpu_elsewhere = elsewhere
     best.model.attrs["noise_starts"] = json.dumps(
         [[float(q), float(r), None if f is None else float(f.cost)]
          for (q, r), f in zip(noise_starts, fits)])
     return best
+
+
+def _screen_one(records, structure, start, noise_start, screen):
+    """One noise start's screening passes, or the IdentificationError that ended them."""
+    with blas_threads():
+        try:
+            return _fit(records, structure, start=start, noise_start=tuple(noise_start),
+                        **screen)
+        except IdentificationError as exc:
+            return exc
+
+
+def _screened(records, structure, start, noise_starts, screen) -> tuple[list, float]:
+    """:func:`_screen_one` of every start, in order, and the CPU (s) they took in other
+    processes: side by side in up to :data:`MAX_SCREEN_PROCESSES` processes
+    (:func:`~sysid.core.util.forkserver_context`), in turn with one."""
+    processes = min(worker_processes("SYSID_FIT_PROCESSES", MAX_SCREEN_PROCESSES),
+                    len(noise_starts))
+    if processes <= 1:
+        return [_screen_one(records, structure, start, qr, screen) for qr in noise_starts], 0.0
+    with concurrent.futures.ProcessPoolExecutor(processes,
+                                                mp_context=forkserver_context()) as pool:
+        futures = [pool.submit(_screen_one, records, structure, start, qr, screen)
+                   for qr in noise_starts]
+        got = [f.result() for f in futures]
+    return got, sum(g.cpu_time for g in got if isinstance(g, _Screened))
 
 
 @dataclass

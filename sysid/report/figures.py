@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import base64
 import concurrent.futures
-import multiprocessing
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,8 +17,7 @@ import xarray as xr
 
 import sysid.report.plots as plots
 from sysid.assess.envelopes import Envelope
-from sysid.core.errors import InputDataError
-from sysid.core.util import Progress
+from sysid.core.util import Progress, forkserver_context, worker_processes
 from sysid.models import frequency_response
 from sysid.report.page import esc
 
@@ -37,20 +34,7 @@ def report_processes() -> int:
     """How many processes render figures: ``SYSID_REPORT_PROCESSES``, else the usable cores
     up to :data:`MAX_REPORT_PROCESSES`; 1 inside a daemonic process (a Dask worker), which
     may not start children."""
-    value = os.environ.get("SYSID_REPORT_PROCESSES")
-    if value:
-        try:
-            return max(1, int(value))
-        except ValueError:
-            raise InputDataError(f"SYSID_REPORT_PROCESSES must be an integer, got "
-                                 f"{value!r}") from None
-    if multiprocessing.current_process().daemon:
-        return 1
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        cores = os.cpu_count() or 1
-    return max(1, min(cores, MAX_REPORT_PROCESSES))
+    return worker_processes("SYSID_REPORT_PROCESSES", MAX_REPORT_PROCESSES)
 
 
 class Renderer:
@@ -60,9 +44,8 @@ class Renderer:
     def __init__(self, processes: int):
         self._pool = None
         if processes > 1:
-            # forkserver: a clean child, not a fork of a process that may hold threads.
             self._pool = concurrent.futures.ProcessPoolExecutor(
-                processes, mp_context=multiprocessing.get_context("forkserver"))
+                processes, mp_context=forkserver_context())
 
     def submit(self, builder, args: tuple) -> concurrent.futures.Future:
         if self._pool is not None:
