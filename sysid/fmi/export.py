@@ -14,7 +14,8 @@ for the other:
   ``X_lon``, ``tau_L_lon``, ...), in the model's analysis units (the units of the paper's
   derivative tables), plus ``trim_<input>`` (%) and ``trim_<output>`` (SI). The matrices are
   assembled from the fixed parts and these parameters in ``model_initialize``, so a user can
-  inspect and tune them before initialisation.
+  inspect and tune them before initialisation; a tied parameter (``also``) sets every entry
+  it ties, each times its scale.
 
 The C code is the generic template ``fmus/linear`` plugged into the shared boilerplate
 ``fmus/common`` (the same one the truth helicopter uses: ``fmu_core.c`` with
@@ -271,8 +272,8 @@ def export_spec(model: xr.Dataset, name: str | None = None) -> ExportSpec:
     method = str(model.attrs.get("method", "model"))
     return ExportSpec(
         name=name or f"sysid_{method}", states=states, inputs=inputs, outputs=outputs,
-        A0=fixed["A"], B0=fixed["B"], C0=fixed["C"], D0=fixed["D"], parameters=parameters, ties=ties,
-        groups=groups, trim_input=trim_in, trim_output=trim_out, x_scale=x_scale,
+        A0=fixed["A"], B0=fixed["B"], C0=fixed["C"], D0=fixed["D"], parameters=parameters,
+        ties=ties, groups=groups, trim_input=trim_in, trim_output=trim_out, x_scale=x_scale,
         y_scale=y_scale, descriptions=descriptions,
         attrs={k: v for k, v in model.attrs.items() if isinstance(v, (str, int, float))})
 
