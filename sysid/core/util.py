@@ -189,6 +189,18 @@ def forkserver_context():
     return context
 
 
+def start_forkserver() -> None:
+    """Start :func:`forkserver_context`'s server now, so that its imports run beside the
+    caller's work (on another core) instead of when the first pool needs a child; nothing
+    inside a daemonic process (a Dask worker), which starts no children."""
+    import multiprocessing
+    import multiprocessing.forkserver
+
+    if not multiprocessing.current_process().daemon:
+        forkserver_context()
+        multiprocessing.forkserver.ensure_running()
+
+
 def worker_processes(variable: str, maximum: int) -> int:
     """How many worker processes a parallel step may start: the environment ``variable``
     when set, else the usable cores up to ``maximum``; 1 inside a daemonic process (a Dask

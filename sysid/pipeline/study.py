@@ -54,7 +54,7 @@ import sysid
 from sysid.core.errors import InputDataError, SysidError
 from sysid.core.guidelines import COHERENCE_MIN
 from sysid.core.units import CONTROLS, STATES_6DOF
-from sysid.core.util import Progress, blas_threads
+from sysid.core.util import Progress, blas_threads, start_forkserver
 from sysid.data.campaign import CampaignData
 from sysid.data.netcdf import group_attrs, read_campaign, update_campaign_groups, write_campaign
 from sysid.flight_test.campaign import (Campaign, default_campaign, run_campaign,
@@ -269,6 +269,7 @@ class _Study:
     def __init__(self, out_dir: str | Path, settings: StudySettings, *, quiet: bool,
                  log: TextIO | None = None):
         self.open(out_dir, settings, quiet=quiet, log=log)
+        start_forkserver()  # its imports beside the campaign, for the fits' and figures' pools
         self.fmu_path = build_fmu()
         if settings.campaign_file:
             self.campaign = campaign_from_file(settings.campaign_file, settings)
