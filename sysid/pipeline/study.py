@@ -113,7 +113,6 @@ def structure_for(airspeed_kt: float) -> str:
     return "hover_6dof" if airspeed_kt < FORWARD_FLIGHT_KT else "forward_6dof"
 
 
-
 def campaign_from_file(path: str | Path, settings: "StudySettings") -> Campaign:
     """A campaign TOML flown as ``settings`` ask: their seed (when given) replaces the
     file's, ``noise=False`` switches its sensor noise and turbulence off; its airspeed must
@@ -128,6 +127,7 @@ def campaign_from_file(path: str | Path, settings: "StudySettings") -> Campaign:
                              f"the study is at {settings.airspeed_kt:g} kt; give the "
                              f"matching study or --speed {campaign.airspeed_kt:g}")
     return campaign
+
 
 @dataclass
 class StudySettings:
