@@ -223,13 +223,16 @@ def test_noise_starts_screened_in_processes_give_the_same_fit(monkeypatch):
     assert two.cpu_time > two.cpu_elsewhere
 
 
-def test_analytic_sensitivities_match_central_differences():
+@pytest.mark.parametrize("tied", [False, True])
+def test_analytic_sensitivities_match_central_differences(tied):
     """The innovation sensitivities of the solver and the bounds (predictor sensitivity
     equations, Riccati derivative from a Lyapunov equation) against central differences of
     the whitened innovations, off the optimum, on the heave/pitch system with a free delay
     (at 1.65 samples: the interpolation is smooth there), an output equation
     (``az = w_dot``, so C and D depend on the derivatives) with a D parameter, full process
-    noise, a negative ``r``, biases and initial states, and a non-diagonal whitener.
+    noise, a negative ``r``, biases and initial states, and a non-diagonal whitener; with
+    ``tied`` M_w and M_lon are not parameters but set by Z_w and Z_lon (``also``, with a
+    scale), so a tied A and a tied B entry reach C and D through the output equation.
     Measured: largest column error 2e-9 relative. The compressed problem handed to the
     solver (bias and initial state solved for) has the projected problem's cost, gradient
     and Gauss-Newton matrix."""
@@ -237,7 +240,9 @@ def test_analytic_sensitivities_match_central_differences():
     from sysid.identify.time_domain import fit_inputs
     where = {"Z_w": ("A", "w", "w"), "Z_q": ("A", "w", "q"), "M_w": ("A", "q", "w"),
              "M_q": ("A", "q", "q"), "Z_lon": ("B", "w", "lon"), "M_lon": ("B", "q", "lon")}
-    params = [Parameter(k, *where[k], v) for k, v in TRUTH.items()]
+    ties = {"Z_w": (("q", "w", -0.375),), "Z_lon": (("q", "lon", -3.0),)} if tied else {}
+    params = [Parameter(k, *where[k], v, also=ties.get(k, ())) for k, v in TRUTH.items()
+              if not (tied and k in ("M_w", "M_lon"))]
     params += [Parameter("tau_q", "delay", "q", "lon", 0.03, True, 0.0, 0.2),
                Parameter("D_az", "D", "az", "lon", 0.1)]
     st = LinearStructure(states=("w", "q"), inputs=("lon",), outputs=("w", "q", "az"),
