@@ -25,7 +25,7 @@ from sysid.identify.frequency_domain import (W_G, W_P, FitData, _Problem,
                                              coherence_random_error, perturbed_coherence,
                                              response_jacobian, response_residuals)
 from sysid.identify.statistics import OUTLYING_SCALES, robust_scale
-from sysid.models import six_dof_structure, simulate
+from sysid.models import simulate, six_dof_structure, structure_from_dict
 from sysid.core.units import DEG, FT
 
 # Padfield, Helisim Bo-105 hover, SI and rad (Helicopter Flight Dynamics; docs/methods.md).
@@ -188,6 +188,23 @@ def test_noise_free_recovery_from_equation_error_start():
 def test_equation_error_start_is_exact_without_delays():
     values = {k: v for k, v in truth_values().items() if k not in TRUE_DELAYS}
     st = six_dof_structure(theta0=THETA0, phi0=PHI0, free=list(values), values=values)
+    fr = analytic_response(st)
+    theta = equation_error_start(fr, st.with_values(np.zeros(st.theta0.size)))
+    np.testing.assert_allclose(theta, st.theta0, rtol=1e-8, atol=1e-10)
+
+
+def test_equation_error_start_is_exact_with_tied_entries():
+    # a tied A entry (M_w also sets X_w, half of it) and a tied B entry (Z_col also sets the
+    # pitch row, scale 0.4): each parameter's start is its entry's estimate over the scale
+    st = structure_from_dict(
+        {"states": ["u", "w", "q", "theta"], "inputs": ["lon", "col"],
+         "outputs": ["u", "w", "q", "theta"],
+         "A": {"X_u": -0.02, "Z_w": -0.3, "M_q": -1.0,
+               "theta,q": {"value": 1.0, "free": False},
+               "u,theta": {"value": -32.17, "free": False},
+               "M_w": {"value": 0.02, "also": [["u,w", 0.5]]}},
+         "B": {"M_lon": -0.9, "Z_col": {"value": -0.8, "also": [["q,col", 0.4]]}}},
+        source="tied")
     fr = analytic_response(st)
     theta = equation_error_start(fr, st.with_values(np.zeros(st.theta0.size)))
     np.testing.assert_allclose(theta, st.theta0, rtol=1e-8, atol=1e-10)
