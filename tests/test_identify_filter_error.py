@@ -17,6 +17,7 @@ for filter error and output error side by side. Default suite: 8 seeds; ``-m slo
 
 from __future__ import annotations
 
+import io
 import json
 import os
 
@@ -221,6 +222,22 @@ def test_noise_starts_screened_in_processes_give_the_same_fit(monkeypatch):
     assert one.model.attrs["noise_starts"] == two.model.attrs["noise_starts"]
     assert one.cpu_elsewhere == 0.0 and two.cpu_elsewhere > 0.0
     assert two.cpu_time > two.cpu_elsewhere
+    # processes that cannot start (or die): the same fit in this process, and a line saying so
+    from concurrent.futures.process import BrokenProcessPool
+
+    from sysid.core.util import Progress
+    from sysid.identify import filter_error as fe
+
+    class Broken:
+        def __init__(self, *args, **kwargs):
+            raise BrokenProcessPool("no children here")
+
+    monkeypatch.setattr(fe.concurrent.futures, "ProcessPoolExecutor", Broken)
+    lines = io.StringIO()
+    three = identify_filter_error(recs, st, start=st.theta0, progress=Progress(stream=lines))
+    assert three.cost == one.cost and three.cpu_elsewhere == 0.0
+    np.testing.assert_array_equal(three.theta, one.theta)
+    assert "screening processes failed (BrokenProcessPool: no children here)" in lines.getvalue()
 
 
 @pytest.mark.parametrize("tied", [False, True])

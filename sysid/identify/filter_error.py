@@ -86,6 +86,7 @@ BIT 15, 1975.
 from __future__ import annotations
 
 import concurrent.futures
+import concurrent.futures.process
 import json
 import math
 import time
@@ -895,7 +896,8 @@ def _best_start(records, structure, *, start, noise_starts, progress, **kw):
         return best
     screen = {**kw, "max_passes": min(SCREEN_PASSES, kw["max_passes"]), "screen": True}
     fits, errors = [], []
-    screened, elsewhere = _screened(records, structure, start, noise_starts, screen)
+    screened, elsewhere = _screened(records, structure, start, noise_starts, screen,
+                                    progress)
     for (q, r), got in zip(noise_starts, screened):
         if isinstance(got, IdentificationError):  # no stabilising predictor from this start
             errors.append(got)
@@ -928,20 +930,27 @@ def _screen_one(records, structure, start, noise_start, screen):
             return exc
 
 
-def _screened(records, structure, start, noise_starts, screen) -> tuple[list, float]:
+def _screened(records, structure, start, noise_starts, screen, progress=None
+              ) -> tuple[list, float]:
     """:func:`_screen_one` of every start, in order, and the CPU (s) they took in other
     processes: side by side in up to :data:`MAX_SCREEN_PROCESSES` processes
-    (:func:`~sysid.core.util.forkserver_context`), in turn with one."""
+    (:func:`~sysid.core.util.forkserver_context`), in turn with one, or when the processes
+    cannot be started or die (the same results, later)."""
     processes = min(worker_processes("SYSID_FIT_PROCESSES", MAX_SCREEN_PROCESSES),
                     len(noise_starts))
-    if processes <= 1:
-        return [_screen_one(records, structure, start, qr, screen) for qr in noise_starts], 0.0
-    with concurrent.futures.ProcessPoolExecutor(processes,
-                                                mp_context=forkserver_context()) as pool:
-        futures = [pool.submit(_screen_one, records, structure, start, qr, screen)
-                   for qr in noise_starts]
-        got = [f.result() for f in futures]
-    return got, sum(g.cpu_time for g in got if isinstance(g, _Screened))
+    if processes > 1:
+        try:
+            with concurrent.futures.ProcessPoolExecutor(
+                    processes, mp_context=forkserver_context()) as pool:
+                futures = [pool.submit(_screen_one, records, structure, start, qr, screen)
+                           for qr in noise_starts]
+                got = [f.result() for f in futures]
+            return got, sum(g.cpu_time for g in got if isinstance(g, _Screened))
+        except (OSError, concurrent.futures.process.BrokenProcessPool) as exc:
+            if progress is not None:
+                progress.message(f"[sysid] filter error: the screening processes failed "
+                                 f"({type(exc).__name__}: {exc}); screening in this process")
+    return [_screen_one(records, structure, start, qr, screen) for qr in noise_starts], 0.0
 
 
 @dataclass
