@@ -25,7 +25,7 @@ import sysid.report.plots
 from sysid.models import frequency_response, load_structure, simulate
 from sysid.report import PAPER_PAIRS, write_report
 from sysid.report.figures import MAX_REPORT_PROCESSES, report_processes
-from sysid.report.sections import _truth_value
+from sysid.report.sections import _truth_value, tied_parameters_note
 from sysid.assess.metrics import j_rms, theil_inequality
 
 REPO = Path(__file__).resolve().parents[1]
@@ -642,3 +642,14 @@ def test_guideline_marks_and_fidelity_scoreboard(report, campaign):
     assert flagged > 0 and "bias beyond noise" in report["html"]
     # no /frequency_response_no_transient in this campaign: the before/after figure says so
     assert "leakage" in report["html"] and "fig03a_leakage_before_after" not in report["html"]
+
+
+def test_tied_parameters_are_named_beside_the_derivative_tables():
+    # hover_hybrid ties one flapping time constant to both flapping rows: the report says
+    # which entries each tied parameter sets, with the scale
+    trim = {"theta": 0.0, "phi": 0.0, "u": 0.0, "v": 0.0, "w": 0.0}
+    model = load_structure("hover_hybrid", trim=trim).to_dataset()
+    note = tied_parameters_note({"frequency_domain": model})
+    assert "A[a1,a1] also sets A[b1,b1] (x 1)" in note
+    assert tied_parameters_note({"frequency_domain": load_structure("hover_6dof", trim=trim)
+                                 .to_dataset()}) == ""

@@ -34,13 +34,15 @@ from sysid.identify.statistics import (format_undetermined, guideline_mark,
                                       undetermined_parameters)
 from sysid.spectral.response import NO_TRANSIENT_GROUP
 from sysid.core.units import CHANNELS, CONTROLS, STATES_6DOF
+from sysid.models import parse_tied_entries
 from sysid.report.figures import Context
 from sysid.report.page import DASH, esc, html_table, not_available, num, slug, verdict_cell
 
 __all__ = ["PAPER_PAIRS", "CONDITIONING_PAIRS", "PAIR_FIGURES", "TIME_FIGURES", "SECTIONS",
            "PairResult", "index", "section_trim", "section_inputs", "section_conditioning",
            "section_pairs", "section_time", "section_derivatives", "section_guidelines",
-           "section_reduction", "section_provenance", "section_fidelity", "ON_AXIS_PAIRS"]
+           "section_reduction", "section_provenance", "section_fidelity", "ON_AXIS_PAIRS",
+           "tied_parameters_note"]
 
 
 #: The paper's input/output pairs, in its order (section "Mathematical model structure").
@@ -570,8 +572,29 @@ def section_derivatives(ctx: Context) -> str:
         parts.append(html_table(header, rows, "numeric derivatives", raw=True,
                                 table_id=anchor) if rows
                      else not_available(f"no parameters for {title}"))
+    parts.append(tied_parameters_note(models))
     parts.append(_equivalents_table(ctx, models))
     return "".join(parts)
+
+
+def tied_parameters_note(models: Mapping[str, xr.Dataset]) -> str:
+    """A paragraph naming each tied parameter (``also``: one value on several entries) and
+    the further entries it sets with their scales; empty when no model has one."""
+    tied = {}
+    for ds in models.values():
+        if "also" not in ds or "parameter" not in ds.dims:
+            continue
+        for k, name in enumerate(map(str, ds["parameter"].values)):
+            entries = parse_tied_entries(ds["also"].values[k] or "")
+            if entries:
+                matrix = str(ds["matrix"].values[k])
+                tied[name] = ", ".join(f"{matrix}[{r},{c}] (x {scale:g})"
+                                       for r, c, scale in entries)
+    if not tied:
+        return ""
+    items = "; ".join(f"{esc(name)} also sets {esc(text)}" for name, text in tied.items())
+    return (f"<p>Tied parameters (one value on several entries, each times its scale; "
+            f"the tables show the first entry): {items}.</p>")
 
 
 def _equivalents_table(ctx: Context, models: dict[str, xr.Dataset]) -> str:
