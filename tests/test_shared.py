@@ -153,3 +153,24 @@ def test_blas_threads_limits_every_blas_even_before_scipy_is_imported():
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
                          text=True, check=True).stdout
     assert out.strip() == "[1]", out
+
+
+def test_forkserver_start_is_an_optimisation_that_never_fails_the_caller(monkeypatch):
+    # where the forkserver cannot start (no sockets, a platform without it) the study goes
+    # on: the pools start it later or fall back; in a daemonic process nothing is started
+    import multiprocessing
+    import multiprocessing.forkserver
+
+    from sysid.core.util import start_forkserver
+
+    def refuse():
+        raise OSError("no forkserver here")
+
+    monkeypatch.setattr(multiprocessing.forkserver, "ensure_running", refuse)
+    start_forkserver()   # no error
+    calls = []
+    monkeypatch.setattr(multiprocessing.forkserver, "ensure_running", lambda: calls.append(1))
+    monkeypatch.setattr(multiprocessing.current_process(), "_config",
+                        {**multiprocessing.current_process()._config, "daemon": True})
+    start_forkserver()
+    assert calls == []

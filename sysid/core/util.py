@@ -192,13 +192,18 @@ def forkserver_context():
 def start_forkserver() -> None:
     """Start :func:`forkserver_context`'s server now, so that its imports run beside the
     caller's work (on another core) instead of when the first pool needs a child; nothing
-    inside a daemonic process (a Dask worker), which starts no children."""
+    inside a daemonic process (a Dask worker), which starts no children, nor where it cannot
+    start (an optimisation only)."""
     import multiprocessing
     import multiprocessing.forkserver
 
-    if not multiprocessing.current_process().daemon:
+    if multiprocessing.current_process().daemon:
+        return
+    try:
         forkserver_context()
         multiprocessing.forkserver.ensure_running()
+    except (OSError, ValueError):  # no forkserver here: the pools start it (or fall back)
+        pass
 
 
 def worker_processes(variable: str, maximum: int) -> int:
