@@ -653,3 +653,32 @@ def test_tied_parameters_are_named_beside_the_derivative_tables():
     assert "A[a1,a1] also sets A[b1,b1] (x 1)" in note
     assert tied_parameters_note({"frequency_domain": load_structure("hover_6dof", trim=trim)
                                  .to_dataset()}) == ""
+
+
+def _figure_unless_in_a_worker(parent_pid: int):
+    """A small figure; in any other process than ``parent_pid`` the process dies first (a
+    worker killed, e.g. for memory)."""
+    import os
+
+    import matplotlib.pyplot as plt
+
+    if os.getpid() != parent_pid:
+        os._exit(1)
+    fig, ax = plt.subplots(figsize=(2, 2))
+    ax.plot([0, 1], [0, 1])
+    return fig
+
+
+def test_a_dying_figure_worker_costs_time_not_the_figure():
+    import os
+
+    from sysid.report.figures import Renderer
+
+    renderer = Renderer(2)
+    try:
+        png = renderer.submit(_figure_unless_in_a_worker, (os.getpid(),))
+        assert png()[:8] == b"\x89PNG\r\n\x1a\n"   # drawn here after the worker died
+        later = renderer.submit(_figure_unless_in_a_worker, (os.getpid(),))
+        assert later()[:8] == b"\x89PNG\r\n\x1a\n"  # the broken pool is not used again
+    finally:
+        renderer.close()

@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import base64
 import concurrent.futures
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import xarray as xr
@@ -39,7 +41,9 @@ def report_processes() -> int:
 
 class Renderer:
     """Renders figures in a process pool, or inline with one process; figures are queued
-    while the sections are built and collected when the page is assembled."""
+    while the sections are built and collected when the page is assembled. A pool that
+    cannot start or whose worker dies (e.g. killed for memory) costs time, not the report:
+    its figures are drawn here instead."""
 
     def __init__(self, processes: int):
         self._pool = None
@@ -47,16 +51,27 @@ class Renderer:
             self._pool = concurrent.futures.ProcessPoolExecutor(
                 processes, mp_context=forkserver_context())
 
-    def submit(self, builder, args: tuple) -> concurrent.futures.Future:
+    def submit(self, builder, args: tuple) -> Callable[[], bytes]:
+        """A callable that returns the figure's PNG bytes."""
         if self._pool is not None:
-            return self._pool.submit(plots.render_png, builder, args)
-        done: concurrent.futures.Future = concurrent.futures.Future()
-        done.set_result(plots.render_png(builder, args))
-        return done
+            try:
+                future = self._pool.submit(plots.render_png, builder, args)
+            except (OSError, BrokenProcessPool):
+                self.close()
+            else:
+                def result() -> bytes:
+                    try:
+                        return future.result()
+                    except (OSError, BrokenProcessPool):
+                        return plots.render_png(builder, args)
+                return result
+        data = plots.render_png(builder, args)
+        return lambda: data
 
     def close(self) -> None:
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
 
 
 @dataclass
@@ -71,7 +86,7 @@ class Context:
     figures: list[str] = field(default_factory=list)
     anchors: dict[str, str] = field(default_factory=dict)  # anchor -> caption
     _model_fr: dict = field(default_factory=dict)
-    _pending: dict = field(default_factory=dict)  # slot token -> (name, path, caption, future)
+    _pending: dict = field(default_factory=dict)  # slot token -> (name, path, caption, png)
 
     def figure(self, name: str, caption: str, builder, *args) -> str:
         """Queue ``builder(*args)`` (a :mod:`sysid.report.plots` figure function) for
@@ -86,8 +101,8 @@ class Context:
 
     def embed_figures(self, text: str) -> str:
         """Write every queued figure and put its ``<figure>`` in place of its slot token."""
-        for token, (name, path, caption, future) in self._pending.items():
-            data = future.result()
+        for token, (name, path, caption, png) in self._pending.items():
+            data = png()
             path.write_bytes(data)
             b64 = base64.b64encode(data).decode("ascii")
             text = text.replace(
