@@ -11,6 +11,7 @@ import sys
 import tempfile
 import threading
 import time
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 import numpy as np
@@ -171,6 +172,10 @@ class Progress:
             self.stream.write("\n")
             self.stream.flush()
 
+
+#: What a process pool raises when it cannot start its processes or one of them dies: its
+#: callers then do the work in the calling process (the same results, later).
+POOL_FAILURES = (OSError, BrokenProcessPool)
 
 #: Modules the forkserver imports once, before it forks any child: the callables that
 #: :func:`forkserver_context`'s pools run (the report's figures, filter error's screening),

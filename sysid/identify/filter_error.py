@@ -86,7 +86,6 @@ BIT 15, 1975.
 from __future__ import annotations
 
 import concurrent.futures
-import concurrent.futures.process
 import json
 import math
 import time
@@ -99,7 +98,8 @@ import scipy.optimize
 import xarray as xr
 
 from sysid.core.errors import IdentificationError, InputDataError
-from sysid.core.util import blas_threads, forkserver_context, worker_processes
+from sysid.core.util import (POOL_FAILURES, blas_threads, forkserver_context,
+                             worker_processes)
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters, ParameterStatistics,
                                       add_corrected_bounds, coloured_residual_covariance,
                                       parameter_rows, parameter_statistics)
@@ -946,7 +946,7 @@ def _screened(records, structure, start, noise_starts, screen, progress=None
                            for qr in noise_starts]
                 got = [f.result() for f in futures]
             return got, sum(g.cpu_time for g in got if isinstance(g, _Screened))
-        except (OSError, concurrent.futures.process.BrokenProcessPool) as exc:
+        except POOL_FAILURES as exc:
             if progress is not None:
                 progress.message(f"[sysid] filter error: the screening processes failed "
                                  f"({type(exc).__name__}: {exc}); screening in this process")

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import base64
 import concurrent.futures
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -19,7 +18,7 @@ import xarray as xr
 
 import sysid.report.plots as plots
 from sysid.assess.envelopes import Envelope
-from sysid.core.util import Progress, forkserver_context, worker_processes
+from sysid.core.util import POOL_FAILURES, Progress, forkserver_context, worker_processes
 from sysid.models import frequency_response
 from sysid.report.page import esc
 
@@ -56,13 +55,13 @@ class Renderer:
         if self._pool is not None:
             try:
                 future = self._pool.submit(plots.render_png, builder, args)
-            except (OSError, BrokenProcessPool):
+            except POOL_FAILURES:
                 self.close()
             else:
                 def result() -> bytes:
                     try:
                         return future.result()
-                    except (OSError, BrokenProcessPool):
+                    except POOL_FAILURES:
                         return plots.render_png(builder, args)
                 return result
         data = plots.render_png(builder, args)
