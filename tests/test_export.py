@@ -382,17 +382,20 @@ def test_tuned_parameter_changes_the_model(delayed):
         assert np.max(np.abs(y - ref[name].values)) < 1e-9 * np.max(np.abs(ref[name].values))
 
 
-#: A structure whose parameters set several entries (``also``): a tied A and a tied B.
+#: A structure whose parameters set several entries (``also``): a tied A and a tied B, the
+#: latter onto an entry a held parameter gives a known part (the parts add).
 TIED = {"states": ["u", "w", "q", "theta"], "inputs": ["lon", "col"],
         "outputs": ["u", "w", "q", "theta"],
         "A": {"X_u": -0.02, "Z_w": -0.3, "M_q": -1.0, "theta,q": {"value": 1.0, "free": False},
               "u,theta": {"value": -32.17, "free": False},
               "M_w": {"value": 0.02, "also": [["u,w", 0.5]]}},
-        "B": {"M_lon": -0.9, "Z_col": {"value": -0.8, "also": [["q,col", 0.4]]}}}
+        "B": {"M_lon": -0.9, "Z_col": {"value": -0.8, "also": [["q,col", 0.4]]},
+              "q,col": {"value": 0.3, "free": False}}}
 
 
 def test_tuned_tied_parameter_changes_every_entry_it_sets(tmp_path):
-    # Setting a tied parameter in the FMU moves all its entries, as in the structure.
+    # Setting a tied parameter in the FMU moves all its entries, as in the structure (and
+    # keeps the held part of an entry it shares).
     st = structure_from_dict(TIED, source="tied")
     fmu = export_fmu(st.to_dataset(attrs={"method": "frequency_domain"}), tmp_path / "tied.fmu")
     inputs = xr.merge([_inputs("3211", "lon"), _inputs("2311", "col")])

@@ -279,6 +279,38 @@ def test_toml_coherence_min_is_the_structures_own_admission(tmp_path):
             load_structure(path, trim={"theta": 5.0})
 
 
+def test_toml_structure_extends_a_base(tmp_path):
+    """``base`` lays a file over another structure file (built-in by name, or a path
+    relative to it): its entries replace or add to the base's table by table, ``remove``
+    drops base entries, other keys replace; a base that leads back, or a removal of what the
+    base lacks, is refused naming the file."""
+    (tmp_path / "plain.toml").write_text(
+        'name = "plain"\nstates = ["w", "q"]\ninputs = ["col"]\n'
+        '[A]\nZ_w = -0.3\nM_w = 0.1\n[B]\nZ_col = -0.7\nM_col = 0.2\n')
+    (tmp_path / "sub").mkdir()
+    derived = tmp_path / "sub" / "derived.toml"
+    derived.write_text('base = "../plain.toml"\nname = "derived"\nremove = ["M_col"]\n'
+                       '[A]\nZ_w = { value = -0.5, free = false }\n"q,q" = -1.0\n')
+    st = load_structure(derived)
+    assert st.name == "derived" and st.states == ("w", "q")
+    assert st.parameter("Z_w").value == -0.5 and not st.parameter("Z_w").free
+    assert {"M_w", "M_q", "Z_col"} <= set(st.parameter_names)
+    assert "M_col" not in st.parameter_names
+    builtin = tmp_path / "hybrid_more.toml"
+    builtin.write_text('base = "hover_hybrid"\nname = "more"\n[A]\nN_w = 0.5\n')
+    trim = {"theta": 2.0, "phi": -1.0, "u": 0.0, "v": 0.0, "w": 0.0}
+    more, hybrid = load_structure(builtin, trim=trim), load_structure("hover_hybrid", trim=trim)
+    assert more.states == hybrid.states and more.parameter("N_w").value == 0.5
+    assert declared_coherence_min(builtin) == declared_coherence_min("hover_hybrid")
+    (tmp_path / "loop.toml").write_text('base = "loop.toml"\nstates = ["w"]\n'
+                                        'inputs = ["col"]\n')
+    with pytest.raises(InputDataError, match="leads back to itself"):
+        load_structure(tmp_path / "loop.toml")
+    (tmp_path / "bad.toml").write_text('base = "plain.toml"\nremove = ["N_r"]\n')
+    with pytest.raises(InputDataError, match="bad.toml: remove names 'N_r'"):
+        load_structure(tmp_path / "bad.toml")
+
+
 def test_builtin_hover_structure():
     assert {"hover_6dof", "paper_hover"} <= set(builtin_structures())
     paper = load_structure("paper_hover", trim={"theta": 6.76, "phi": -2.87})

@@ -100,7 +100,9 @@ class Parameter:
         ``scale * value``: a physical constant that appears in several equations is one
         unknown, e.g. one flapping time constant on the a1 and b1 rows, or the tail rotor's
         thrust in the roll and yaw rows (the scale its arms' ratio). Tying such entries
-        removes a direction the data cannot separate from the fit.
+        removes a direction the data cannot separate from the fit. Parts on one entry add:
+        a held parameter may give an entry the known part of a free one's tie (e.g. the
+        inflow row of ``hover_hybrid_inflow``), two free parameters may not share one.
     """
 
     name: str
@@ -195,7 +197,7 @@ class LinearStructure:
         self._entries = {k: ([], [], []) for k in "ABCD"}  # parameter index, row, column
         self._scales = {k: [] for k in "ABCD"}  # the entry's multiple of the value (ties)
         self._delay_entries: list[tuple[int, np.ndarray, int]] = []  # (param, rows, column)
-        seen: dict[tuple, str] = {}
+        seen: dict[tuple, list] = {}  # entry -> [(parameter, free)]
         delayed = np.zeros((len(self.states), len(self.inputs)), dtype=bool)
         for k, par in enumerate(self.parameters):
             if par.matrix not in _MATRICES:
@@ -228,12 +230,17 @@ class LinearStructure:
                                          f"may set further entries ('also'), this one is in "
                                          f"{par.matrix}")
                 for i, j, scale in [(int(r[0]), c, 1.0), *self._tied(par)]:
+                    # an entry adds its parameters' parts; at most one of them free (a
+                    # known part plus an unknown one), no parameter twice
                     key = (par.matrix, i, j)
-                    if key in seen:
+                    clash = [other for other, free in seen.get(key, [])
+                             if other == par.name or (free and par.free)]
+                    if clash:
                         raise InputDataError(
-                            f"parameters {seen[key]!r} and {par.name!r} both set "
-                            f"{entry_name(par.matrix, rows[i], cols[j])}")
-                    seen[key] = par.name
+                            f"parameters {clash[0]!r} and {par.name!r} both set "
+                            f"{entry_name(par.matrix, rows[i], cols[j])} (an entry may add "
+                            f"held parameters to at most one free one)")
+                    seen.setdefault(key, []).append((par.name, par.free))
                     self._entries[par.matrix][0].append(k)
                     self._entries[par.matrix][1].append(i)
                     self._entries[par.matrix][2].append(j)
@@ -275,6 +282,12 @@ class LinearStructure:
         kk, r, c = self._entries[par.matrix]
         hit = np.flatnonzero(kk == k)
         return [(int(r[h]), int(c[h]), float(self._scales[par.matrix][h])) for h in hit]
+
+    def entry_shared(self, matrix: str, row: int, column: int) -> int:
+        """How many parameters add to entry ``(row, column)`` of ``matrix`` (A-D): 0 for
+        a fixed entry, more than 1 where ties add onto another parameter's entry."""
+        kk, r, c = self._entries[matrix]
+        return int(np.count_nonzero((r == row) & (c == column)))
 
     def _check_output_delays(self) -> None:
         """An output equation may not read a delayed B entry (module docstring)."""
@@ -410,9 +423,12 @@ class LinearStructure:
                 if par.row not in da[rdim].values:
                     continue
                 rows, cols = axes[par.matrix]
-                # a tied parameter: the mean over its entries (each over its scale)
+                # a tied parameter: the mean over its entries (each over its scale) that no
+                # other parameter adds to (all of them if every one is shared)
+                entries = self.entries_of(k)
+                own = [e for e in entries if self.entry_shared(par.matrix, e[0], e[1]) == 1]
                 got = [(float(da.sel({rdim: rows[i], cdim: cols[j]})) - fixed[par.matrix][i, j])
-                       / scale for i, j, scale in self.entries_of(k)
+                       / scale for i, j, scale in (own or entries)
                        if rows[i] in da[rdim].values and cols[j] in da[cdim].values]
                 val = float(np.mean(got))
             if np.isfinite(val):

@@ -58,6 +58,12 @@ def structure_from_dict(spec: Mapping, *, trim: Mapping[str, float] | None = Non
 
         name = "hover_6dof"
         description = "..."
+        base = "hover_hybrid"              # optional: a built-in name or a path (relative
+                                           # to this file) whose TOML this one extends: its
+                                           # [A], [B], [delays]... entries are added or
+                                           # replaced one by one, other keys replaced
+        remove = ["tau_col"]               # optional: base entries (as the base names
+                                           # them) to drop
         states  = ["u", "v", "w", "p", "q", "r", "phi", "theta", "psi"]
         inputs  = ["lon", "lat", "col", "ped"]
         outputs = [...]                    # default: the states (C = I)
@@ -431,8 +437,17 @@ def load_structure(source: str | Path, *, trim: Mapping[str, float] | None = Non
     return structure_from_dict(_read(path), trim=trim, source=str(path))
 
 
-def _read(path: Path) -> dict:
-    """The parsed TOML of a structure file, with errors that name it."""
+#: Tables a derived structure file (``base = "..."``) merges entry by entry into its
+#: base's; every other key it gives replaces the base's.
+MERGED_TABLES = ("kinematics", "trim", "A", "B", "C", "D", "output_equations", "sensors",
+                 "delays")
+
+
+def _read(path: Path, derived: tuple[Path, ...] = ()) -> dict:
+    """The parsed TOML of a structure file, with errors that name it; a file with
+    ``base = "<built-in name or path>"`` is its base's TOML (a path relative to the file)
+    without the entries its ``remove`` list names, with its own keys laid over it
+    (:data:`MERGED_TABLES` entry by entry)."""
     try:
         spec = tomllib.loads(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError as exc:
@@ -442,4 +457,30 @@ def _read(path: Path) -> dict:
         raise InputDataError(f"structure file {path}: invalid TOML: {exc}") from None
     except OSError as exc:
         raise InputDataError(f"structure file {path}: cannot be read ({exc})") from None
-    return spec
+    if "base" not in spec:
+        return spec
+    base = _text(spec.pop("base"), f"structure file {path}: base")
+    relative = path.parent / base
+    base_path = structure_path(relative if relative.is_file() else base).resolve()
+    chain = (*derived, path.resolve())
+    if base_path in chain:
+        raise InputDataError(f"structure file {path}: its base {base} leads back to itself "
+                             f"({' -> '.join(str(p) for p in (*chain, base_path))})")
+    merged = _read(base_path, chain)
+    remove = (_names(spec.pop("remove"), f"structure file {path}: remove")
+              if "remove" in spec else [])
+    for name in remove:
+        tables = [t for t in MERGED_TABLES
+                  if isinstance(merged.get(t), Mapping) and name in merged[t]]
+        if not tables:
+            raise InputDataError(f"structure file {path}: remove names {name!r}, which its "
+                                 f"base {base} does not have in any of {list(MERGED_TABLES)}")
+        for t in tables:
+            del merged[t][name]
+    for key, value in spec.items():
+        if key in MERGED_TABLES and isinstance(value, Mapping) and isinstance(
+                merged.get(key, {}), Mapping):
+            merged[key] = {**merged.get(key, {}), **value}
+        else:
+            merged[key] = value
+    return merged

@@ -302,20 +302,20 @@ def truth_for_structure(full: xr.Dataset, structure: LinearStructure) -> xr.Data
     z = [i for i, s in enumerate(states) if not measured[i] and s not in STATES_6DOF]
     # states with no fixed entry on a measured column (e.g. actuators with the truth's names
     # and known gearing) keep the truth's scale
-    z = [i for i in z if np.any((structure.A0[i] != 0) & measured)
-         or any(p.matrix == "A" and not p.free and p.row == states[i]
-                and measured[states.index(p.column)] for p in structure.parameters)]
+    free = np.zeros_like(structure.A0, dtype=bool)
+    fixedA = structure.A0.copy()
+    vals = structure.values()
+    for k in (k for k, p in enumerate(structure.parameters) if p.matrix == "A"):
+        for r, c, scale in structure.entries_of(k):  # every entry of a tied parameter
+            if structure.parameters[k].free:
+                free[r, c] = True
+            else:
+                fixedA[r, c] += scale * vals[k]
+    # ... and that entry has no free part (a held entry a free tie adds to, e.g. an inflow
+    # row tied to the heave damping, does not fix the state's scale)
+    z = [i for i in z if np.any((fixedA[i] != 0) & measured & ~free[i])]
     T = np.eye(len(z))
     if z:
-        free = np.zeros_like(structure.A0, dtype=bool)
-        fixedA = structure.A0.copy()
-        vals = structure.values()
-        for k in (k for k, p in enumerate(structure.parameters) if p.matrix == "A"):
-            for r, c, scale in structure.entries_of(k):  # every entry of a tied parameter
-                if structure.parameters[k].free:
-                    free[r, c] = True
-                else:
-                    fixedA[r, c] += scale * vals[k]
         Q = [j for j in range(len(states)) if j not in z and not free[z, j].any()
              and np.any(fixedA[z, j] != 0)]
         if len(Q) >= len(z):
@@ -342,8 +342,11 @@ def truth_for_structure(full: xr.Dataset, structure: LinearStructure) -> xr.Data
             src = A if p.matrix == "A" else B
             cols = states if p.matrix == "A" else list(structure.inputs)
             fixed0 = structure.A0 if p.matrix == "A" else structure.B0
-            values[k] = (src[states.index(p.row), cols.index(p.column)]
-                         - fixed0[states.index(p.row), cols.index(p.column)])
+            r, c = states.index(p.row), cols.index(p.column)
+            others = sum(scale * values[m] for m in range(len(values)) if m != k
+                         and structure.parameters[m].matrix == p.matrix
+                         for i, j, scale in structure.entries_of(m) if (i, j) == (r, c))
+            values[k] = src[r, c] - fixed0[r, c] - others
     model["value"].values = values
     model.attrs.update(full.attrs)
     model.attrs.update({"method": "linearization", "structure": structure.name,
