@@ -63,7 +63,7 @@ class FitOutcome:
     """
 
     cost: float
-    statistics: ParameterStatistics
+    statistics: ParameterStatistics | None  #: None only for a refit above its ceiling
     payload: Any = None
     #: False when the fit stopped early because its cost could no longer come under the
     #: ceiling it was given (``cost`` is then where it stopped).
@@ -282,7 +282,8 @@ def stepwise_reduction(fit: Callable[..., FitOutcome],
         in ``removed`` (all removed so far, the newest last) fixed at zero, starting from
         ``previous`` (the last accepted outcome, whose ``payload`` the caller defines).
         ``ceiling`` is the cost above which the removal is undone; the fit may stop once its
-        cost can no longer come under it (``FitOutcome.converged`` False) or ignore it.
+        cost can no longer come under it (``FitOutcome.converged`` False) or ignore it, and
+        may leave ``statistics`` None when it ends above it.
     initial : FitOutcome
         The converged full model.
     cr_max, insensitivity_max : float
@@ -312,14 +313,15 @@ def stepwise_reduction(fit: Callable[..., FitOutcome],
             break
         k, reason = pick
         name = stats.names[k]
-        trial = fit(tuple(removed + [name]), current, current.cost + max_cost_increase)
-        rise = trial.cost - current.cost
-        accepted = bool(np.isfinite(trial.cost) and rise <= max_cost_increase)
-        if accepted and not trial.converged:
-            raise ValueError(f"stepwise_reduction: the refit without {name} stopped early at "
-                             f"cost {trial.cost:.6g}, under its ceiling "
-                             f"{current.cost + max_cost_increase:.6g}; a fit may stop early "
-                             f"only above the ceiling")
+        ceiling = current.cost + max_cost_increase
+        trial = fit(tuple(removed + [name]), current, ceiling)
+        accepted = bool(np.isfinite(trial.cost) and trial.cost <= ceiling)
+        if accepted and (not trial.converged or trial.statistics is None):
+            raise ValueError(f"stepwise_reduction: the refit without {name} "
+                             f"{'stopped early' if not trial.converged else 'has no statistics'}"
+                             f" at cost {trial.cost:.6g}, under its ceiling {ceiling:.6g}; a "
+                             f"fit may stop early or leave out its statistics only above the "
+                             f"ceiling")
         steps.append(ReductionStep(name, float(stats.values[k]),
                                    float(stats.cramer_rao_percent[k]),
                                    float(stats.insensitivity_percent[k]), reason,
