@@ -276,7 +276,9 @@ def truth_for_structure(full: xr.Dataset, structure: LinearStructure) -> xr.Data
        keeping the structure's outputs (the accelerometer rows come from the FMU's outputs);
     2. unmeasured states (no output reads them directly) are defined only up to a change of
        coordinates ``z' = T z``; the structure fixes it through the A entries it holds fixed
-       in their rows, e.g. ``A[a1,q] = A[b1,p] = -1`` of a hybrid model. ``T`` solves
+       in their rows, e.g. ``A[a1,q] = A[b1,p] = -1`` of a hybrid model (an entry with a free
+       part, e.g. an inflow row tied to Z_w, fixes nothing: that state keeps the truth's
+       scale). ``T`` solves
        ``T A_truth[z, Q] = A_structure[z, Q]`` (least squares) over the measured columns
        ``Q`` where every z-row entry is fixed and some is non-zero; then ``A' = S A S^-1``,
        ``B' = S B``, ``C' = C S^-1`` with ``S = diag(I, T)``. Without such columns ``T = I``.
