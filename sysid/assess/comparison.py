@@ -406,11 +406,13 @@ def quasi_steady_equivalents(model: xr.Dataset, quasi_steady: xr.Dataset,
                                                       if s not in states)})
 
 
-def dominant_equivalents(tree: xr.DataTree, models: Mapping[str, xr.Dataset]
-                         ) -> dict[str, xr.Dataset]:
-    """Per model with states the quasi-steady ``/linearization`` lacks (flapping), the
-    :func:`quasi_steady_equivalents` of the :data:`DOMINANT` derivatives it does not have as
-    parameters; empty for quasi-steady models or without a linearisation."""
+def dominant_equivalents(tree: xr.DataTree, models: Mapping[str, xr.Dataset], *,
+                         every: bool = False) -> dict[str, xr.Dataset]:
+    """Per model with states the quasi-steady ``/linearization`` lacks (flapping, inflow),
+    the :func:`quasi_steady_equivalents` of the :data:`DOMINANT` derivatives it does not
+    have as parameters (``every``: of all of them; e.g. an inflow model's Z_w is the
+    thrust's, about three times the quasi-steady one); empty for quasi-steady models or
+    without a linearisation."""
     if "linearization" not in tree.children:
         return {}
     lin = tree["linearization"].to_dataset(inherit=False)
@@ -422,7 +424,7 @@ def dominant_equivalents(tree: xr.DataTree, models: Mapping[str, xr.Dataset]
         if ("A" not in model or "parameter" not in model.dims
                 or set(map(str, model["A"].state.values)) <= rigid):
             continue
-        missing = [n for n in DOMINANT if n not in model.parameter.values]
+        missing = [n for n in DOMINANT if every or n not in model.parameter.values]
         if missing:
             out[method] = quasi_steady_equivalents(model, lin, names=missing)
     return out

@@ -598,10 +598,10 @@ def tied_parameters_note(models: Mapping[str, xr.Dataset]) -> str:
 
 
 def _equivalents_table(ctx: Context, models: dict[str, xr.Dataset]) -> str:
-    """The dominant derivatives a higher-order model implies (its extra states
+    """Every dominant derivative a higher-order model implies (its extra states
     residualised), beside the truth's quasi-steady values; empty for quasi-steady models
     (:func:`sysid.assess.comparison.dominant_equivalents`)."""
-    equivalents = dominant_equivalents(ctx.tree, models)
+    equivalents = dominant_equivalents(ctx.tree, models, every=True)
     if not equivalents:
         return ""
     lin = read.linearization(ctx.tree)
