@@ -1108,16 +1108,11 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
     nt = pred.n_theta
     Gt = _project_out(J[:, :nt], J[:, nt:])
     stats = parameter_statistics(Gt, beta[:nt], list(structure.free_names))
-    coloured = pending = None
+    pending = None
     if nt:  # the innovations' colour (structure error the process noise did not absorb)
         ends = np.cumsum([0] + [len(e) * p for e in E])
         pending = ([Gt[a:b].reshape(-1, p, nt) for a, b in zip(ends[:-1], ends[1:])],
                    [e @ pred.whitener.T for e in E], recs[0].dt)
-        if corrected:
-            coloured = coloured_residual_covariance(
-                sensitivities=pending[0], residuals=pending[1],
-                information_inverse=stats.covariance)
-            pending = None
     theta, F, R, _, _ = pred.split(beta)
     _, C, _, disc = pred.discrete(theta)
     K, P = pred.kalman(disc[recs[0].dt][0], C, F, R)
@@ -1173,14 +1168,17 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
         "max_abs_autocorrelation": float(np.max(np.abs(white))),
     }
     model = structure.to_dataset(theta, stats, attrs=attrs)
-    add_corrected_bounds(model, structure.free_names, theta, coloured, recs[0].dt)
+    add_corrected_bounds(model, structure.free_names, theta, None, recs[0].dt)
     for da in (gain_da, q_da, r_da, sig_da, white_da):
         model[da.name] = da
-    return FilterErrorResult(model, structure, theta, stats, joint, gain_da, q_da, f_da, r_da,
-                             sig_da, white_da, float(cost), tuple(r.name for r in recs), outs,
-                             int(passes), int(pred.n_eval), float(cpu), full_statistics=stats,
-                             coloured=coloured, noise_and_nuisance=beta[nt:].copy(),
-                             coloured_pending=pending)
+    result = FilterErrorResult(model, structure, theta, stats, joint, gain_da, q_da, f_da,
+                               r_da, sig_da, white_da, float(cost),
+                               tuple(r.name for r in recs), outs, int(passes),
+                               int(pred.n_eval), float(cpu), full_statistics=stats,
+                               noise_and_nuisance=beta[nt:].copy(), coloured_pending=pending)
+    if corrected:
+        _add_coloured(result)
+    return result
 
 
 def _project_out(Gt: np.ndarray, Gn: np.ndarray) -> np.ndarray:
