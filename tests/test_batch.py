@@ -63,6 +63,7 @@ def test_cli_time_domain_method_applies_to_every_condition(tmp_path, monkeypatch
     over the speeds file's choice, and names the condition folders after it."""
     import sysid.cli.batch as cli_batch
     from sysid.cli import main
+    from sysid.flight_test.campaign import default_campaign
 
     seen = {}
 
@@ -86,6 +87,13 @@ def test_cli_time_domain_method_applies_to_every_condition(tmp_path, monkeypatch
     with pytest.raises(Captured):
         main(["batch", str(speeds), "--calm-sweeps", "-o", str(tmp_path / "out"), "-q"])
     assert all(c.calm_sweeps for c in seen["conditions"])
+    design = tmp_path / "design.toml"
+    design.write_text(default_campaign(0.0).select("3211_*").to_toml())
+    speeds.write_text("speeds = [0]\nseeds = [1, 2]\n")
+    with pytest.raises(Captured):
+        main(["batch", str(speeds), "--campaign", str(design), "-o", str(tmp_path / "out"),
+              "-q"])
+    assert {c.campaign for c in seen["conditions"]} == {str(design.resolve())}
     with pytest.raises(SystemExit):  # argparse refuses an unknown estimator
         main(["batch", "--time-domain-method", "least-squares"])
 
@@ -129,6 +137,63 @@ def test_speeds_file(tmp_path):
     path.write_text('speeds = [0]\ntime_domain_method = "kalman"\n')
     with pytest.raises(InputDataError, match="time_domain_method 'kalman'; expected one of"):
         load_conditions(path)
+
+
+def test_speeds_file_with_a_campaign_design(tmp_path, monkeypatch):
+    """A campaign TOML flown instead of the built-in one (a test-input design compared over
+    seeds): read next to the speeds file, named, passed to the study (and reduced for a
+    quick condition), refused before any work at another airspeed or when unreadable; an
+    edited campaign file makes a finished condition run again."""
+    from sysid.flight_test.campaign import Campaign, default_campaign
+    from sysid.pipeline.batch import _write_marker, completed
+
+    design = tmp_path / "designs" / "multisteps.toml"
+    design.parent.mkdir()
+    flown = default_campaign(0.0).select("[32]*")  # the multisteps only, no sweeps
+    design.write_text(flown.to_toml())
+    speeds = tmp_path / "speeds.toml"
+    speeds.write_text('speeds = [0]\nseeds = [1, 2]\ncampaign = "designs/multisteps.toml"\n'
+                      '[[conditions]]\nairspeed_kt = 0\nseed = 3\nquick = true\n'
+                      'campaign = "designs/multisteps.toml"\n')
+    monkeypatch.chdir(tmp_path / "designs")  # relative to the speeds file, not the cwd
+    cs = load_conditions(speeds)
+    assert [c.campaign for c in cs] == [str(design.resolve())] * 3
+    assert [c.name for c in cs] == ["0kt_seed1_multisteps", "0kt_seed2_multisteps",
+                                    "0kt_seed3_quick_multisteps"]
+    assert cs[0].to_dict()["campaign"] == str(design.resolve())
+    assert "campaign" not in Condition(0.0).to_dict()
+    assert Condition(**cs[0].to_dict()) == cs[0]
+    assert study_settings(cs[0], tmp_path / "c0").campaign_file == str(design.resolve())
+    # a structure file named relative to the speeds file is read there too
+    from sysid.models.toml import structure_path
+
+    mine = tmp_path / "designs" / "mine.toml"
+    mine.write_text(structure_path("hover_6dof").read_text())
+    (tmp_path / "s.toml").write_text('speeds = [0]\n[structures]\n"designs/mine.toml" = [0, 10]\n'
+                                     '[[conditions]]\nairspeed_kt = 0\n'
+                                     'structure = "designs/mine.toml"\n')
+    assert [c.structure for c in load_conditions(tmp_path / "s.toml")] == [str(mine.resolve())] * 2
+    quick = Campaign.from_toml(study_settings(cs[2], tmp_path / "c2").campaign_file)
+    assert [m.name for m in quick.maneuvers] == [m.name for m in flown.maneuvers]
+    # resume: the same condition and files are done; an edited design is not
+    folder = tmp_path / "done"
+    folder.mkdir()
+    (folder / "campaign.nc").write_bytes(b"")
+    _write_marker(folder, {"status": "ok", "condition": cs[2].to_dict(),
+                           "inputs": cs[2].inputs_digest()})
+    assert completed(cs[2], folder)
+    design.write_text(flown.select("3211_*").to_toml())
+    assert not completed(cs[2], folder)
+    # refused up front: another airspeed, a missing file
+    (tmp_path / "fast.toml").write_text(default_campaign(80.0).select("3211_*").to_toml())
+    speeds.write_text('speeds = [0]\ncampaign = "fast.toml"\n')
+    with pytest.raises(InputDataError, match="flies at 80 kt, the condition is at 0 kt"):
+        load_conditions(speeds)
+    with pytest.raises(InputDataError, match="flies at 80 kt"):
+        run_batch([Condition(0.0, campaign=str(tmp_path / "fast.toml"))], tmp_path / "out")
+    speeds.write_text('speeds = [0]\ncampaign = "missing.toml"\n')
+    with pytest.raises(InputDataError, match="cannot read campaign file missing.toml"):
+        load_conditions(speeds)
 
 
 def _fake_summary(value, cr, truth):

@@ -83,6 +83,11 @@ def test_calm_sweeps_are_the_same_campaign_with_only_the_sweeps_calm(capsys):
     assert main(["simulate", "--calm-sweeps", "--print-default", "-o", "x.nc"]) == 0
     assert Campaign.from_dict(tomllib.loads(capsys.readouterr().out)) == with_calm_sweeps(
         default_campaign())
+    # printing the template needs no output file; flying one does, and says so
+    assert main(["simulate", "--print-default"]) == 0
+    assert Campaign.from_dict(tomllib.loads(capsys.readouterr().out)) == default_campaign()
+    assert main(["simulate"]) != 0
+    assert "give -o <campaign.nc>" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("change, message", [

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 from sysid.pipeline.batch import (default_conditions, format_calibration, format_summary,
                                   load_conditions, run_batch)
@@ -23,8 +24,8 @@ def register(subparsers) -> None:
                     "what is on disk.")
     p.add_argument("speeds", nargs="?", default=None,
                    help="speeds TOML (speeds = [...], seeds = [...], noise, quick, "
-                        "time_domain_method, [structures]); default: 0, 20, 40, 60, 80, "
-                        "100 kt, one seed")
+                        "time_domain_method, calm_sweeps, campaign, [structures], "
+                        "[[conditions]]); default: 0, 20, 40, 60, 80, 100 kt, one seed")
     p.add_argument("-o", "--output", default="reports/batch", help="output folder")
     p.add_argument("--scheduler", default=None, metavar="tcp://host:port",
                    help="address of an existing Dask scheduler (default: a LocalCluster)")
@@ -42,6 +43,11 @@ def register(subparsers) -> None:
                    help="every condition's sweeps in calm air, its multisteps in the "
                         "campaign's turbulence (what a hybrid structure's frequency-domain "
                         "fit needs)")
+    p.add_argument("--campaign", default=None, metavar="FILE",
+                   help="campaign TOML flown by every condition instead of the built-in one "
+                        "(as 'sysid run --campaign'; each condition's seed and noise apply, "
+                        "its airspeed must be the condition's): Monte Carlo comparison of "
+                        "test-input designs")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
@@ -55,6 +61,9 @@ def run(args) -> int:
         conditions = [dataclasses.replace(c, quick=True) for c in conditions]
     if args.calm_sweeps:
         conditions = [dataclasses.replace(c, calm_sweeps=True) for c in conditions]
+    if args.campaign:
+        conditions = [dataclasses.replace(c, campaign=str(Path(args.campaign).resolve()))
+                      for c in conditions]
     method = time_domain_method(args)
     if method:
         conditions = [dataclasses.replace(c, time_domain_method=method) for c in conditions]

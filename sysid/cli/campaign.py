@@ -20,7 +20,8 @@ def register(subparsers) -> None:
     )
     p.add_argument("campaign", nargs="?", help="campaign TOML file (default: the built-in "
                                                "hover campaign of the paper)")
-    p.add_argument("-o", "--output", required=True, help="campaign netCDF file to write")
+    p.add_argument("-o", "--output", help="campaign netCDF file to write (required unless "
+                                          "--print-default)")
     p.add_argument("--speed", type=float, default=None,
                    help="airspeed in kt for the built-in campaign (default hover)")
     p.add_argument("--maneuvers", default="*", help="only manoeuvres matching this glob")
@@ -38,7 +39,10 @@ def register(subparsers) -> None:
 
 
 def _simulate(args) -> int:
-    if Path(args.output).is_dir():  # said before flying, not after
+    if not args.output and not args.print_default:
+        raise InputDataError("sysid simulate: give -o <campaign.nc> (the file to write), or "
+                             "--print-default to print the campaign as TOML")
+    if args.output and Path(args.output).is_dir():  # said before flying, not after
         raise InputDataError(f"-o {args.output} is a directory; expected a campaign file name "
                              "(e.g. -o campaign.nc)")
     if args.campaign:

@@ -34,8 +34,9 @@ simulation, non-converging fit) and returns it as a failure record (the exceptio
 first line of its message, e.g. ``IdentificationError: ...``; the stages are library calls,
 so that is the stage's own exception),
 so one bad condition never stops the others; a worker that dies is reported the same way.
-Resume: a condition whose folder holds a completed study with the same settings (its
-``condition.json`` says ``ok`` and, unless quick, ``report.html`` exists) is not recomputed;
+Resume: a condition whose folder holds a completed study with the same settings and input
+files (its ``condition.json`` says ``ok`` with the same digest of its campaign and structure
+TOML, and, unless quick, ``report.html`` exists) is not recomputed;
 a failed or interrupted one is re-run, and :func:`run_study`'s per-stage cache reuses
 whatever it had finished (e.g. the campaign).
 
@@ -46,7 +47,8 @@ M_w, Z_u, L_v, N_v ... free); a condition or a speeds file can name another.
 The ``batch.nc`` Dataset (dims ``condition``, ``model`` (the identification method), ``parameter``):
 
 - coords on ``condition``: ``airspeed_kt``, ``seed``, ``noise`` (0/1), ``quick`` (0/1),
-  ``calm_sweeps`` (0/1), ``structure``,
+  ``calm_sweeps`` (0/1), ``campaign`` (the campaign TOML flown, "" for the built-in one),
+  ``structure``,
   ``time_domain_method`` (the estimator of the ``time_domain`` model: output or filter
   error), ``status`` (``ok``/``failed``), ``error`` (type: message, "" when ok),
   ``elapsed_s``;
@@ -78,6 +80,7 @@ The ``batch.nc`` Dataset (dims ``condition``, ``model`` (the identification meth
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import heapq
 import itertools
 import json
@@ -99,9 +102,10 @@ from sysid.core.errors import InputDataError, SysidError
 from sysid.core.units import CONTROLS
 from sysid.core.util import Progress, atomic_path
 from sysid.data.netcdf import read_campaign
-from sysid.flight_test.campaign import default_campaign
+from sysid.flight_test.campaign import Campaign, default_campaign
 from sysid.identify.statistics import OUTLYING_SCALES
 from sysid.models import parameter_values
+from sysid.models.toml import structure_path
 from sysid.pipeline.study import (FORWARD_FLIGHT_KT, METHODS, PARTS, QUICK_OMITS,
                                   TIME_DOMAIN_AUTO, TIME_DOMAIN_METHODS, StudySettings,
                                   run_study, structure_for)
@@ -133,6 +137,10 @@ class Condition:
     #: Sweeps flown in calm air, the multisteps in the campaign's turbulence
     #: (:attr:`~sysid.pipeline.study.StudySettings.calm_sweeps`; hybrid structures).
     calm_sweeps: bool = False
+    #: A campaign TOML flown instead of the built-in one (``sysid run --campaign``; the
+    #: condition's seed and noise apply, its airspeed must be the condition's): Monte Carlo
+    #: comparisons of test-input designs.
+    campaign: str | None = None
 
     @property
     def name(self) -> str:
@@ -145,6 +153,8 @@ class Condition:
             text += "_" + self.time_domain_method
         if self.calm_sweeps:
             text += "_calmsweeps"
+        if self.campaign:
+            text += "_" + Path(self.campaign).stem
         if self.structure:
             text += "_" + Path(str(self.structure)).stem
         return text
@@ -160,19 +170,39 @@ class Condition:
         return settings.time_domain_estimator
 
     def to_dict(self) -> dict:
-        """The fields (``calm_sweeps`` only when set: the resume markers of earlier batches,
-        which lack it, still match their conditions)."""
+        """The fields (``calm_sweeps`` and ``campaign`` only when set: the resume markers of
+        earlier batches, which lack them, still match their conditions)."""
         out = dataclasses.asdict(self)
-        if not self.calm_sweeps:
-            del out["calm_sweeps"]
+        for optional in ("calm_sweeps", "campaign"):
+            if not out[optional]:
+                del out[optional]
         return out
+
+    def check(self) -> None:
+        """Raise :class:`~sysid.core.errors.InputDataError` for a campaign file that cannot
+        be read or flies at another airspeed (before any work starts)."""
+        if not self.campaign:
+            return
+        flown = Campaign.from_toml(self.campaign).airspeed_kt
+        if abs(float(flown) - self.airspeed_kt) > 1e-9:
+            raise InputDataError(f"condition {self.name}: campaign file {self.campaign} flies "
+                                 f"at {flown:g} kt, the condition is at {self.airspeed_kt:g} kt")
+
+    def inputs_digest(self) -> str:
+        """Digest of the files the condition reads (its campaign and structure TOML), kept
+        in the resume marker: an edited file re-runs the condition."""
+        digest = hashlib.sha256()
+        for path in ([Path(self.campaign)] if self.campaign else []) + [
+                structure_path(self.structure_name)]:
+            digest.update(path.read_bytes() if path.exists() else str(path).encode())
+        return digest.hexdigest()[:16]
 
 
 def conditions(speeds: Iterable[float] = DEFAULT_SPEEDS, seeds: Iterable[int] = (20261121,),
                *, noise: bool = True, quick: bool = False,
                structures: dict[str, tuple[float, float]] | None = None,
                time_domain_method: str = TIME_DOMAIN_AUTO,
-               calm_sweeps: bool = False) -> list[Condition]:
+               calm_sweeps: bool = False, campaign: str | None = None) -> list[Condition]:
     """Every (speed, seed) combination as a :class:`Condition`.
 
     ``structures`` maps a structure (built-in name or TOML path) to an airspeed band
@@ -187,7 +217,7 @@ def conditions(speeds: Iterable[float] = DEFAULT_SPEEDS, seeds: Iterable[int] = 
                 break
         for s in seeds:
             out.append(Condition(float(v), int(s), bool(noise), structure, bool(quick),
-                                 time_domain_method, bool(calm_sweeps)))
+                                 time_domain_method, bool(calm_sweeps), campaign))
     return out
 
 
@@ -201,6 +231,8 @@ def load_conditions(path: str | Path) -> list[Condition]:
         time_domain_method = "auto"         # "filter_error", "output_error" or "auto" (the
                                             # default: filter error, output error if quick)
         calm_sweeps = false                 # sweeps in calm air, multisteps in turbulence
+        campaign = "designs/long_3211.toml" # optional: a campaign TOML instead of the
+                                            # built-in one (sysid simulate --print-default)
 
         [structures]                        # optional: structure -> airspeed band [from, to) kt
         hover_6dof = [0, 30]
@@ -210,6 +242,9 @@ def load_conditions(path: str | Path) -> list[Condition]:
         airspeed_kt = 50
         seed = 7
         structure = "my_structure.toml"
+
+    A relative ``campaign`` or structure path is read next to the speeds file when it is
+    there (else from the working directory; a structure may also be a built-in name).
     """
     path = Path(path)
     try:
@@ -217,7 +252,7 @@ def load_conditions(path: str | Path) -> list[Condition]:
     except (OSError, tomllib.TOMLDecodeError) as exc:
         raise InputDataError(f"cannot read speeds file {path}: {exc}") from None
     known = {"speeds", "seeds", "noise", "quick", "structures", "conditions",
-             "time_domain_method", "calm_sweeps"}
+             "time_domain_method", "calm_sweeps", "campaign"}
     unknown = set(spec) - known
     if unknown:
         raise InputDataError(f"speeds file {path}: unknown keys {sorted(unknown)}; "
@@ -234,16 +269,29 @@ def load_conditions(path: str | Path) -> list[Condition]:
     if method not in (*TIME_DOMAIN_METHODS, TIME_DOMAIN_AUTO):
         raise InputDataError(f"speeds file {path}: time_domain_method {method!r}; expected "
                              f"one of {(*TIME_DOMAIN_METHODS, TIME_DOMAIN_AUTO)}")
+    here = path.parent
+
+    def beside(value):  # a relative path next to the speeds file when it is there
+        if value is None or Path(value).is_absolute() or not (here / value).exists():
+            return value
+        return str((here / value).resolve())
+
+    bands = {beside(k): v for k, v in bands.items()}
+    campaign = beside(spec.get("campaign"))
     out = conditions(speeds, seeds, noise=bool(spec.get("noise", True)),
                      quick=bool(spec.get("quick", False)), structures=bands,
-                     time_domain_method=method, calm_sweeps=bool(spec.get("calm_sweeps", False)))
+                     time_domain_method=method, calm_sweeps=bool(spec.get("calm_sweeps", False)),
+                     campaign=campaign)
     fields = {f.name for f in dataclasses.fields(Condition)}
     for k, item in enumerate(spec.get("conditions", [])):
         bad = set(item) - fields
         if bad or "airspeed_kt" not in item:
             raise InputDataError(f"speeds file {path}: [[conditions]] entry {k + 1} needs "
                                  f"airspeed_kt and only {sorted(fields)}; got {sorted(item)}")
+        item = {**item, **{k: beside(item[k]) for k in ("structure", "campaign") if k in item}}
         out.append(Condition(**item))
+    for condition in out:
+        condition.check()
     if not out:
         raise InputDataError(f"speeds file {path}: no conditions (give speeds = [...] or "
                              f"[[conditions]])")
@@ -253,9 +301,10 @@ def load_conditions(path: str | Path) -> list[Condition]:
 # -----------------------------------------------------------------------------------------
 # One condition (runs inside a Dask worker)
 # -----------------------------------------------------------------------------------------
-def quick_campaign(airspeed_kt: float, *, noise: bool, seed: int):
-    """The default campaign reduced for fast checks (see :class:`Condition`)."""
-    full = default_campaign(airspeed_kt, noise=noise, seed=seed)
+def quick_campaign(airspeed_kt: float, *, noise: bool, seed: int,
+                   full: Campaign | None = None) -> Campaign:
+    """The default campaign (or ``full``) reduced for fast checks (see :class:`Condition`)."""
+    full = full or default_campaign(airspeed_kt, noise=noise, seed=seed)
     kept = [m for m in full.maneuvers if m.kind != "sweep" or m.name.endswith("_1")]
     return dataclasses.replace(full, name=full.name + "_quick", maneuvers=kept)
 
@@ -263,10 +312,11 @@ def quick_campaign(airspeed_kt: float, *, noise: bool, seed: int):
 def study_settings(condition: Condition, folder: str | Path):
     """The :class:`~sysid.pipeline.study.StudySettings` of ``condition`` (writes the quick campaign
     TOML into ``folder`` when ``quick``)."""
-    campaign_file = None
+    campaign_file = condition.campaign
     if condition.quick:
+        given = Campaign.from_toml(campaign_file) if campaign_file else None
         campaign = quick_campaign(condition.airspeed_kt, noise=condition.noise,
-                                  seed=condition.seed)
+                                  seed=condition.seed, full=given)
         campaign_file = Path(folder) / "campaign.toml"
         campaign_file.parent.mkdir(parents=True, exist_ok=True)
         text = campaign.to_toml()
@@ -299,6 +349,7 @@ def completed(condition: Condition, folder: str | Path) -> bool:
     except (OSError, ValueError):
         return False
     return (record.get("status") == "ok" and record.get("condition") == condition.to_dict()
+            and record.get("inputs") == condition.inputs_digest()
             and (condition.quick or (folder / "report.html").exists())
             and (folder / "campaign.nc").exists())
 
@@ -340,7 +391,8 @@ def run_condition_part(spec: dict, folder: str, part: str, fail: str | None = No
     for previous in upstream:
         part_elapsed.update(previous.get("part_elapsed_s", {}))
     record = {"name": condition.name, "condition": condition.to_dict(), "status": "ok",
-              "error_type": "", "message": "", "summary": None}
+              "error_type": "", "message": "", "summary": None,
+              "inputs": condition.inputs_digest()}
     failed = [r for r in upstream if r["status"] != "ok"]
     start = time.perf_counter()
     if failed:
@@ -597,6 +649,8 @@ def run_batch(conditions: Sequence[Condition], out_dir: str | Path, *,
         raise InputDataError(f"run_batch: duplicated conditions {duplicated}")
     if n_workers < 1:
         raise InputDataError(f"run_batch: n_workers must be >= 1, got {n_workers}")
+    for c in conditions:
+        c.check()
     out = Path(out_dir).resolve()
     out.mkdir(parents=True, exist_ok=True)
     progress = Progress(quiet=quiet)
@@ -766,6 +820,7 @@ def combine(conditions: Sequence[Condition], records: Sequence[dict]) -> xr.Data
         quick=("condition", np.array([int(c.quick) for c in conditions], dtype="int8")),
         calm_sweeps=("condition", np.array([int(c.calm_sweeps) for c in conditions],
                                            dtype="int8")),
+        campaign=("condition", [c.campaign or "" for c in conditions]),
         structure=("condition", [c.structure_name for c in conditions]),
         time_domain_method=("condition", [c.time_domain_estimator for c in conditions]),
         status=("condition", [by_name[n]["status"] for n in names]),
