@@ -19,7 +19,8 @@ import xarray as xr
 
 from sysid.assess.comparison import DOMINANT
 from sysid.pipeline.batch import (Condition, _ReadyParts, calibration, combine, conditions,
-                                  format_calibration, load_conditions, monte_carlo,
+                                  format_calibration, format_monte_carlo, load_conditions,
+                                  monte_carlo,
                                   plot_calibration, run_batch, structure_for, study_settings)
 from sysid.core.errors import InputDataError
 
@@ -224,9 +225,42 @@ def test_combine_and_monte_carlo_statistics():
     assert "InputDataError" in str(ds.error.values[-1])
     assert np.isnan(ds["value"].isel(condition=-1)).all()
     mc = monte_carlo(ds)
-    ratio = mc["ratio"].sel(airspeed_kt=0.0, model="frequency_domain")
+    ratio = mc["ratio"].sel(group="0kt", model="frequency_domain")
     assert np.allclose(ratio, 2.0, atol=0.5)
-    assert int(mc["n_seeds"].sel(airspeed_kt=0.0)) == 40
+    assert int(mc["n_seeds"].sel(group="0kt")) == 40
+    assert float(mc.airspeed_kt.sel(group="0kt")) == 0.0
+
+
+def test_seeds_are_pooled_only_within_one_setting():
+    """Two structures flown at one airspeed are two groups of seeds, not one: each group's
+    scatter is the standard deviation of its own estimates (pooled, the offset between the
+    structures would count as scatter)."""
+    rng = np.random.default_rng(7)
+    cs = [Condition(0.0, seed=s, structure=st) for st in ("hover_6dof", "hover_hybrid")
+          for s in range(6)] + [Condition(0.0, seed=99, structure="paper_hover")]
+    offset = {"hover_6dof": 0.0, "hover_hybrid": 2.0, "paper_hover": 0.0}
+    records = []
+    for c in cs:
+        v = np.array([-3.0, -11.0]) + offset[c.structure] + 0.1 * rng.standard_normal(2)
+        records.append({"name": c.name, "status": "ok", "elapsed_s": 1.0,
+                        "summary": _fake_summary(v, [0.1, 0.1], [-3.0, -11.0])})
+    ds = combine(cs, records)
+    assert list(ds.group.values[::6]) == ["0kt_hover_6dof", "0kt_hover_hybrid",
+                                          "0kt_paper_hover"]
+    mc = monte_carlo(ds)
+    assert list(mc.group.values) == ["0kt_hover_6dof", "0kt_hover_hybrid"]  # one seed: none
+    cal = calibration(ds)
+    assert list(cal.calibration_group.values) == list(mc.group.values)
+    for label in mc.group.values:
+        mine = ds["value"].sel(model="frequency_domain", parameter="M_q").values[
+            ds.group.values == label]
+        assert np.std(mine, ddof=1) < 0.3  # the 2.0 offset between structures not in it
+        assert float(mc["std"].sel(group=label, model="frequency_domain", parameter="M_q")) \
+            == pytest.approx(np.std(mine, ddof=1), rel=1e-12)
+        assert float(cal["calibration_scatter"].sel(
+            calibration_group=label, dominant="M_q", bound="frequency_domain")) == \
+            pytest.approx(np.std(mine, ddof=1), rel=1e-12)
+    assert "0kt_hover_hybrid (6 seeds)" in format_monte_carlo(mc)
 
 
 def test_calibration_of_the_bounds_against_a_known_scatter(tmp_path):
@@ -253,7 +287,7 @@ def test_calibration_of_the_bounds_against_a_known_scatter(tmp_path):
         records.append({"name": c.name, "status": "ok", "elapsed_s": 1.0, "summary": summary})
     ds = combine(cs, records)
     cal = calibration(ds)
-    ratio = cal["calibration_ratio"].sel(calibration_kt=0.0)
+    ratio = cal["calibration_ratio"].sel(calibration_group="0kt")
     assert list(cal.dominant.values) == list(DOMINANT)
     assert np.allclose(ratio.sel(dominant=["M_q", "L_p"], bound="frequency_domain"), 2.0,
                        rtol=0.3)
@@ -262,10 +296,10 @@ def test_calibration_of_the_bounds_against_a_known_scatter(tmp_path):
     assert np.allclose(ratio.sel(dominant=["M_q", "L_p"], bound="time_domain_corrected"), 1.0,
                        rtol=0.3)
     assert np.isnan(ratio.sel(dominant="Z_w")).all()  # not estimated anywhere
-    assert int(cal["calibration_n_seeds"].sel(calibration_kt=0.0, dominant="L_p",
+    assert int(cal["calibration_n_seeds"].sel(calibration_group="0kt", dominant="L_p",
                                               bound="time_domain_white")) == n - 1
     values = ds["value"].sel(model="time_domain", parameter="L_p").values[1:]
-    assert float(cal["calibration_scatter"].sel(calibration_kt=0.0, dominant="L_p",
+    assert float(cal["calibration_scatter"].sel(calibration_group="0kt", dominant="L_p",
                                                 bound="time_domain_white")) == pytest.approx(
         np.std(values, ddof=1), rel=1e-12)
     text = format_calibration(ds.merge(cal))
@@ -351,7 +385,7 @@ def _check_calibration(ds, hover):
     and within a wide sanity band (the goal band needs 20 seeds: tests/test_calibration.py);
     the corrected time-domain bound is at least the white one (coloured residuals)."""
     assert len(hover) >= 2
-    cal = ds.sel(calibration_kt=0.0)
+    cal = ds.swap_dims(calibration_group="calibration_kt").sel(calibration_kt=0.0)
     models = {"frequency_domain": ("frequency_domain", "cramer_rao"),
               "time_domain_white": ("time_domain", "cramer_rao"),
               "time_domain_corrected": ("time_domain", "cramer_rao_corrected")}

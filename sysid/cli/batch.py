@@ -18,7 +18,7 @@ def register(subparsers) -> None:
                     "default, an existing scheduler with --scheduler), combine the results "
                     "into one netCDF file with a condition dimension, plot every derivative "
                     "against airspeed and summarise the Monte Carlo scatter (with several "
-                    "seeds at an airspeed: scatter over seeds / mean bound of each dominant "
+                    "seeds of a setting: scatter over seeds / mean bound of each dominant "
                     "derivative in both domains, batch_calibration.png). A failing "
                     "condition is reported and the others complete; re-running resumes from "
                     "what is on disk.")

@@ -14,9 +14,9 @@ parts it needs have ended, longest chain first (:data:`PART_PRIORITY`)::
     <out>/batch.nc              every condition's results on one ``condition`` dimension
     <out>/batch_derivatives.png every derivative against airspeed: identified values with
                                 Cramer-Rao bars, the truth linearisation overlaid
-    <out>/monte_carlo.nc, monte_carlo.txt   with several seeds per airspeed: observed scatter
-                                of each estimate against its mean Cramer-Rao bound
-    <out>/batch_calibration.png with several seeds per airspeed: scatter / mean bound of each
+    <out>/monte_carlo.nc, monte_carlo.txt   with several seeds of a setting (seed_groups):
+                                observed scatter of each estimate against its mean bound
+    <out>/batch_calibration.png with several seeds of a setting: scatter / mean bound of each
                                 dominant derivative, both domains, and the 0.5-2 goal band
     <out>/batch_summary.txt     one line per condition (status, time, J_ave, error)
 
@@ -60,8 +60,10 @@ The ``batch.nc`` Dataset (dims ``condition``, ``model`` (the identification meth
   ``cramer_rao_selection``: its robust scatter over point re-selections and
   ``selection_outlying`` the fraction of re-selections beyond 3 of it; ``cramer_rao_total``:
   the two bounds in quadrature (the one the fidelity scoreboard judges on);
+- ``group`` (condition): :attr:`Condition.group`, the name without the seed;
 - the Monte Carlo calibration of the bounds (:func:`calibration`; with at least two
-  successful seeds at an airspeed), dims ``calibration_kt`` x ``dominant`` (the dominant
+  successful seeds of one group, :func:`seed_groups`), dims ``calibration_group`` (coordinate
+  ``calibration_kt``, the airspeed) x ``dominant`` (the dominant
   derivatives, :data:`sysid.assess.comparison.DOMINANT`) x ``bound``
   (:data:`CALIBRATION_BOUNDS`): ``calibration_scatter``, ``calibration_bound``,
   ``calibration_ratio``, ``calibration_mean``, ``calibration_truth``, ``calibration_n_seeds``;
@@ -144,7 +146,16 @@ class Condition:
 
     @property
     def name(self) -> str:
-        text = f"{self.airspeed_kt:g}kt_seed{self.seed}"
+        return f"{self.airspeed_kt:g}kt_seed{self.seed}" + self._settings_suffix()
+
+    @property
+    def group(self) -> str:
+        """The name without the seed: conditions that differ only in their seed share it
+        (what :func:`monte_carlo` and :func:`calibration` pool)."""
+        return f"{self.airspeed_kt:g}kt" + self._settings_suffix()
+
+    def _settings_suffix(self) -> str:
+        text = ""
         if not self.noise:
             text += "_nonoise"
         if self.quick:
@@ -821,6 +832,7 @@ def combine(conditions: Sequence[Condition], records: Sequence[dict]) -> xr.Data
         calm_sweeps=("condition", np.array([int(c.calm_sweeps) for c in conditions],
                                            dtype="int8")),
         campaign=("condition", [c.campaign or "" for c in conditions]),
+        group=("condition", [c.group for c in conditions]),
         structure=("condition", [c.structure_name for c in conditions]),
         time_domain_method=("condition", [c.time_domain_estimator for c in conditions]),
         status=("condition", [by_name[n]["status"] for n in names]),
@@ -942,41 +954,55 @@ def _plot_limit(values: np.ndarray, truth: np.ndarray) -> float:
     return OFF_SCALE_FACTOR * scale if scale > 0 else np.inf
 
 
-def monte_carlo(ds: xr.Dataset) -> xr.Dataset | None:
-    """Observed scatter across seeds against the mean Cramer-Rao bound, per airspeed.
+def seed_groups(ds: xr.Dataset) -> list[tuple[str, float, xr.Dataset]]:
+    """The successful conditions of a ``batch.nc`` Dataset pooled over seeds: ``(group,
+    airspeed_kt, part)`` for every :attr:`Condition.group` (the same airspeed, structure,
+    campaign, estimator, noise ...; by airspeed alone in a file written before the ``group``
+    coordinate) with at least two, ordered by airspeed. Why: a scatter over seeds is only
+    one setting's; two structures or campaigns at one airspeed are not seeds of one."""
+    ok = ds.isel(condition=np.flatnonzero(ds.status.values == "ok"))
+    labels = (ok["group"].values if "group" in ok.coords
+              else np.array([f"{float(v):g}kt" for v in ok.airspeed_kt.values]))
+    out = []
+    for label in dict.fromkeys(map(str, labels)):
+        part = ok.isel(condition=np.flatnonzero(labels == label))
+        if part.sizes["condition"] >= 2:
+            out.append((label, float(part.airspeed_kt.values[0]), part))
+    return sorted(out, key=lambda g: g[1])
 
-    Only airspeeds with at least two successful seeds count. Returns (airspeed_kt, model,
-    parameter): ``std`` (sample standard deviation over seeds), ``mean`` , ``cramer_rao_mean``
+
+def monte_carlo(ds: xr.Dataset) -> xr.Dataset | None:
+    """Observed scatter across seeds against the mean Cramer-Rao bound, per
+    :func:`seed_groups` group.
+
+    Only groups with at least two successful seeds count. Returns (group, model, parameter),
+    coordinate ``airspeed_kt`` (group): ``std`` (sample standard deviation over seeds), ``mean`` , ``cramer_rao_mean``
     and ``ratio = std / cramer_rao_mean`` (about 1 when the CR bound is a fair error estimate;
     CIFER experience puts the observed scatter at 2-3 times the bound), and ``n_seeds``.
     """
     if "value" not in ds:
         return None
-    ok = ds.isel(condition=np.flatnonzero(ds.status.values == "ok"))
     groups = []
-    for speed in np.unique(ok.airspeed_kt.values):
-        part = ok.isel(condition=np.flatnonzero(ok.airspeed_kt.values == speed))
-        if part.sizes["condition"] < 2:
-            continue
+    for label, speed, part in seed_groups(ds):
         std = part["value"].std("condition", ddof=1)
         cr = part["cramer_rao"].mean("condition")
         groups.append(xr.Dataset({
             "std": std, "mean": part["value"].mean("condition"), "cramer_rao_mean": cr,
             "ratio": std / cr,
             "n_seeds": xr.DataArray(part.sizes["condition"])}).expand_dims(
-                airspeed_kt=[float(speed)]))
+                group=[label]).assign_coords(airspeed_kt=("group", [speed], {"units": "kt"})))
     if not groups:
         return None
-    mc = xr.concat(groups, dim="airspeed_kt")
+    mc = xr.concat(groups, dim="group")
     mc["ratio"].attrs["long_name"] = "observed std over seeds / mean Cramer-Rao bound"
     return mc
 
 
 def format_monte_carlo(mc: xr.Dataset) -> str:
     lines = ["Monte Carlo: observed std over seeds / mean Cramer-Rao bound"]
-    for speed in mc.airspeed_kt.values:
-        part = mc.sel(airspeed_kt=speed)
-        lines.append(f"\n{speed:g} kt ({int(part['n_seeds'])} seeds)")
+    for label in mc.group.values:
+        part = mc.sel(group=label)
+        lines.append(f"\n{label} ({int(part['n_seeds'])} seeds)")
         lines.append(f"{'parameter':<11}" + "".join(f"{str(m):>30}" for m in mc.model.values))
         lines.append(f"{'':<11}" + "".join(f"{'std':>10}{'CR':>10}{'ratio':>10}"
                                            for _ in mc.model.values))
@@ -1015,8 +1041,8 @@ CALIBRATION_GOAL = (0.5, 2.0)
 
 
 def calibration(ds: xr.Dataset, parameters: Sequence[str] = DOMINANT) -> xr.Dataset | None:
-    """Monte Carlo calibration of the reported bounds: per airspeed with at least two
-    successful seeds, per dominant derivative and per bound of :data:`CALIBRATION_BOUNDS`,
+    """Monte Carlo calibration of the reported bounds: per :func:`seed_groups` group (at
+    least two successful seeds of one setting), per dominant derivative and per bound of :data:`CALIBRATION_BOUNDS`,
     the seed-to-seed scatter of the estimate against the mean reported bound.
 
     ``scatter = std over seeds (ddof=1)`` of the estimate of the bound's model,
@@ -1027,28 +1053,27 @@ def calibration(ds: xr.Dataset, parameters: Sequence[str] = DOMINANT) -> xr.Data
     Returns
     -------
     xr.Dataset or None
-        Dims ``calibration_kt`` (airspeed, kt), ``dominant``, ``bound``: variables
+        Dims ``calibration_group`` (coordinate ``calibration_kt``: airspeed, kt),
+        ``dominant``, ``bound``: variables
         ``calibration_scatter``, ``calibration_bound``, ``calibration_ratio``,
         ``calibration_mean`` (mean estimate), ``calibration_truth`` (mean truth value),
-        ``calibration_n_seeds`` (seeds with an estimate); None when no airspeed has two
+        ``calibration_n_seeds`` (seeds with an estimate); None when no group has two
         successful seeds.
     """
     if "value" not in ds or "condition" not in ds.dims:
         return None
-    ok = ds.isel(condition=np.flatnonzero(ds.status.values == "ok"))
-    speeds = [float(v) for v in np.unique(ok.airspeed_kt.values)
-              if int(np.sum(ok.airspeed_kt.values == v)) >= 2]
-    if not speeds:
+    groups = seed_groups(ds)
+    if not groups:
         return None
+    ok = groups[0][2]
     params = [str(p) for p in parameters]
     bounds = list(CALIBRATION_BOUNDS)
-    shape = (len(speeds), len(params), len(bounds))
+    shape = (len(groups), len(params), len(bounds))
     out = {k: np.full(shape, np.nan) for k in ("scatter", "bound", "mean", "truth")}
     count = np.zeros(shape, dtype=int)
     models = [str(m) for m in ok.model.values]
     present = [str(p) for p in ok.parameter.values]
-    for i, speed in enumerate(speeds):
-        part = ok.isel(condition=np.flatnonzero(ok.airspeed_kt.values == speed))
+    for i, (_, _, part) in enumerate(groups):
         for j, name in enumerate(params):
             if name not in present:
                 continue
@@ -1069,7 +1094,7 @@ def calibration(ds: xr.Dataset, parameters: Sequence[str] = DOMINANT) -> xr.Data
                         part["truth"].sel(parameter=name).notnull().any()) else np.nan
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = out["scatter"] / out["bound"]
-    dims = ("calibration_kt", "dominant", "bound")
+    dims = ("calibration_group", "dominant", "bound")
     return xr.Dataset(
         {"calibration_scatter": (dims, out["scatter"], {
             "long_name": "standard deviation of the estimate over seeds (ddof=1)"}),
@@ -1081,7 +1106,9 @@ def calibration(ds: xr.Dataset, parameters: Sequence[str] = DOMINANT) -> xr.Data
          "calibration_truth": (dims, out["truth"], {
              "long_name": "the truth column's value (mean over seeds)"}),
          "calibration_n_seeds": (dims, count, {"long_name": "seeds with an estimate"})},
-        coords={"calibration_kt": ("calibration_kt", speeds, {"units": "kt"}),
+        coords={"calibration_group": [g[0] for g in groups],
+                "calibration_kt": ("calibration_group", [g[1] for g in groups],
+                                   {"units": "kt"}),
                 "dominant": params, "bound": bounds})
 
 
@@ -1090,10 +1117,10 @@ def format_calibration(ds: xr.Dataset) -> str:
     lines = [f"Calibration of the bounds: scatter over seeds / mean reported bound "
              f"(goal {CALIBRATION_GOAL[0]:g}-{CALIBRATION_GOAL[1]:g})"]
     bounds = [str(b) for b in ds.bound.values]
-    for speed in ds.calibration_kt.values:
-        part = ds.sel(calibration_kt=speed)
+    for label in ds.calibration_group.values:
+        part = ds.sel(calibration_group=label)
         n = int(part["calibration_n_seeds"].max())
-        lines.append(f"\n{float(speed):g} kt (up to {n} seeds); bias = (mean - truth) / scatter")
+        lines.append(f"\n{label} (up to {n} seeds); bias = (mean - truth) / scatter")
         lines.append(f"{'parameter':<10}" + "".join(f"{b:>24}" for b in bounds)
                      + f"{'bias FD':>9}{'bias TD':>9}")
         lines.append(f"{'':<10}" + "".join(f"{'scatter':>9}{'bound':>9}{'ratio':>6}"
@@ -1121,7 +1148,7 @@ def format_calibration(ds: xr.Dataset) -> str:
 
 def plot_calibration(ds: xr.Dataset, path: str | Path) -> Path | None:
     """Scatter / mean bound per dominant derivative, one marker per bound of
-    :data:`CALIBRATION_BOUNDS`, one panel per airspeed, log scale, the goal band shaded; PNG."""
+    :data:`CALIBRATION_BOUNDS`, one panel per group, log scale, the goal band shaded; PNG."""
     import matplotlib  # deferred: optional heavy dependency, only for the figure
 
     matplotlib.use("Agg")
@@ -1129,8 +1156,8 @@ def plot_calibration(ds: xr.Dataset, path: str | Path) -> Path | None:
 
     if "calibration_ratio" not in ds:
         return None
-    speeds = ds.calibration_kt.values
-    fig, axes = plt.subplots(1, len(speeds), figsize=(7.5 * len(speeds), 3.8), squeeze=False)
+    groups = ds.calibration_group.values
+    fig, axes = plt.subplots(1, len(groups), figsize=(7.5 * len(groups), 3.8), squeeze=False)
     styles = {"frequency_domain": ("C0", "o", "FD: CR bound (CIFER)"),
               "frequency_domain_scaled": ("C9", "v", "FD: scaled by the residuals"),
               "frequency_domain_noise": ("C1", "x", "FD: from the spectral random error"),
@@ -1139,8 +1166,8 @@ def plot_calibration(ds: xr.Dataset, path: str | Path) -> Path | None:
               "time_domain_corrected": ("C2", "D", "TD: corrected for coloured residuals")}
     names = [str(n) for n in ds.dominant.values]
     x = np.arange(len(names))
-    for ax, speed in zip(axes[0], speeds):
-        part = ds["calibration_ratio"].sel(calibration_kt=speed)
+    for ax, group in zip(axes[0], groups):
+        part = ds["calibration_ratio"].sel(calibration_group=group)
         ax.axhspan(*CALIBRATION_GOAL, color="0.9", zorder=0, label="goal 0.5-2")
         ax.axhline(1.0, color="0.6", lw=0.8, zorder=0)
         for k, bound in enumerate(ds.bound.values):
@@ -1151,9 +1178,9 @@ def plot_calibration(ds: xr.Dataset, path: str | Path) -> Path | None:
                     ms=6, ls="none", label=label)
         ax.set_yscale("log")
         ax.set_xticks(x, names, fontsize=8)
-        n = int(ds["calibration_n_seeds"].sel(calibration_kt=speed).max())
-        ax.set_title(f"{float(speed):g} kt, {n} seeds: scatter over seeds / mean reported "
-                     f"bound", fontsize=9)
+        n = int(ds["calibration_n_seeds"].sel(calibration_group=group).max())
+        ax.set_title(f"{group}, {n} seeds: scatter over seeds / mean reported bound",
+                     fontsize=9)
         ax.set_ylabel("ratio", fontsize=8)
         ax.legend(fontsize=7, loc="best")
     fig.tight_layout()
