@@ -299,7 +299,8 @@ def load_conditions(path: str | Path) -> list[Condition]:
         if bad or "airspeed_kt" not in item:
             raise InputDataError(f"speeds file {path}: [[conditions]] entry {k + 1} needs "
                                  f"airspeed_kt and only {sorted(fields)}; got {sorted(item)}")
-        item = {**item, **{k: beside(item[k]) for k in ("structure", "campaign") if k in item}}
+        item = {**item, **{key: beside(item[key]) for key in ("structure", "campaign")
+                           if key in item}}
         out.append(Condition(**item))
     for condition in out:
         condition.check()
@@ -976,9 +977,10 @@ def monte_carlo(ds: xr.Dataset) -> xr.Dataset | None:
     :func:`seed_groups` group.
 
     Only groups with at least two successful seeds count. Returns (group, model, parameter),
-    coordinate ``airspeed_kt`` (group): ``std`` (sample standard deviation over seeds), ``mean`` , ``cramer_rao_mean``
-    and ``ratio = std / cramer_rao_mean`` (about 1 when the CR bound is a fair error estimate;
-    CIFER experience puts the observed scatter at 2-3 times the bound), and ``n_seeds``.
+    coordinate ``airspeed_kt`` (group): ``std`` (sample standard deviation over seeds),
+    ``mean``, ``cramer_rao_mean`` and ``ratio = std / cramer_rao_mean`` (about 1 when the
+    CR bound is a fair error estimate; CIFER experience puts the observed scatter at 2-3
+    times the bound), and ``n_seeds``.
     """
     if "value" not in ds:
         return None
@@ -1042,8 +1044,9 @@ CALIBRATION_GOAL = (0.5, 2.0)
 
 def calibration(ds: xr.Dataset, parameters: Sequence[str] = DOMINANT) -> xr.Dataset | None:
     """Monte Carlo calibration of the reported bounds: per :func:`seed_groups` group (at
-    least two successful seeds of one setting), per dominant derivative and per bound of :data:`CALIBRATION_BOUNDS`,
-    the seed-to-seed scatter of the estimate against the mean reported bound.
+    least two successful seeds of one setting), per dominant derivative and per bound of
+    :data:`CALIBRATION_BOUNDS`, the seed-to-seed scatter of the estimate against the mean
+    reported bound.
 
     ``scatter = std over seeds (ddof=1)`` of the estimate of the bound's model,
     ``bound = mean over seeds`` of the reported bound (absolute), ``ratio = scatter /
@@ -1065,14 +1068,13 @@ def calibration(ds: xr.Dataset, parameters: Sequence[str] = DOMINANT) -> xr.Data
     groups = seed_groups(ds)
     if not groups:
         return None
-    ok = groups[0][2]
     params = [str(p) for p in parameters]
     bounds = list(CALIBRATION_BOUNDS)
     shape = (len(groups), len(params), len(bounds))
     out = {k: np.full(shape, np.nan) for k in ("scatter", "bound", "mean", "truth")}
     count = np.zeros(shape, dtype=int)
-    models = [str(m) for m in ok.model.values]
-    present = [str(p) for p in ok.parameter.values]
+    models = [str(m) for m in ds.model.values]
+    present = [str(p) for p in ds.parameter.values]
     for i, (_, _, part) in enumerate(groups):
         for j, name in enumerate(params):
             if name not in present:
