@@ -19,9 +19,9 @@ import xarray as xr
 
 from sysid.assess.comparison import DOMINANT
 from sysid.pipeline.batch import (Condition, _ReadyParts, calibration, combine, conditions,
-                                  format_calibration, format_monte_carlo, load_conditions,
-                                  monte_carlo,
-                                  plot_calibration, run_batch, structure_for, study_settings)
+                                  format_calibration, format_monte_carlo, group_positions,
+                                  load_conditions, monte_carlo, plot_calibration,
+                                  plot_derivatives, run_batch, structure_for, study_settings)
 from sysid.core.errors import InputDataError
 
 EXHAUSTIVE = os.environ.get("SYSID_EXHAUSTIVE") == "1"
@@ -231,10 +231,10 @@ def test_combine_and_monte_carlo_statistics():
     assert float(mc.airspeed_kt.sel(group="0kt")) == 0.0
 
 
-def test_seeds_are_pooled_only_within_one_setting():
+def test_seeds_are_pooled_only_within_one_setting(tmp_path):
     """Two structures flown at one airspeed are two groups of seeds, not one: each group's
     scatter is the standard deviation of its own estimates (pooled, the offset between the
-    structures would count as scatter)."""
+    structures would count as scatter); the derivative figure draws them side by side."""
     rng = np.random.default_rng(7)
     cs = [Condition(0.0, seed=s, structure=st) for st in ("hover_6dof", "hover_hybrid")
           for s in range(6)] + [Condition(0.0, seed=99, structure="paper_hover")]
@@ -261,6 +261,18 @@ def test_seeds_are_pooled_only_within_one_setting():
             calibration_group=label, dominant="M_q", bound="frequency_domain")) == \
             pytest.approx(np.std(mine, ddof=1), rel=1e-12)
     assert "0kt_hover_hybrid (6 seeds)" in format_monte_carlo(mc)
+    # drawn side by side at 0 kt, left to right in the order given; 80 kt stays where it is
+    x, moved = group_positions(ds, span=40.0)
+    assert moved == ["0kt_hover_6dof", "0kt_hover_hybrid", "0kt_paper_hover"]
+    assert list(np.unique(x)) == [-2.0, 0.0, 2.0]
+    assert np.all(x[:6] == -2.0) and np.all(x[6:12] == 0.0) and x[12] == 2.0
+    alone = combine([Condition(0.0, seed=1), Condition(80.0, seed=1)], [
+        {"name": c, "status": "ok", "elapsed_s": 1.0,
+         "summary": _fake_summary([-3.0, -11.0], [0.1, 0.1], [-3.0, -11.0])}
+        for c in ("0kt_seed1", "80kt_seed1")])
+    assert group_positions(alone, span=80.0)[0].tolist() == [0.0, 80.0]
+    assert group_positions(alone, span=80.0)[1] == []
+    assert plot_derivatives(ds, tmp_path / "d.png").stat().st_size > 5_000
 
 
 def test_calibration_of_the_bounds_against_a_known_scatter(tmp_path):

@@ -868,8 +868,29 @@ def estimated_parameters(ds: xr.Dataset) -> list[str]:
     return [str(p) for p in ds.parameter.values if bool(have.sel(parameter=p))]
 
 
+def group_positions(ds: xr.Dataset, span: float) -> tuple[np.ndarray, list[str]]:
+    """x position (kt) of each condition of ``ds`` in :func:`plot_derivatives`: its airspeed,
+    moved sideways by ``0.05 span`` per :attr:`Condition.group` when several groups share the
+    airspeed (two structures or campaign designs side by side, not on top of each other);
+    and the groups so moved, in their left-to-right order."""
+    speeds = np.asarray(ds.airspeed_kt.values, dtype=float)
+    labels = (np.asarray(ds["group"].values, dtype=str) if "group" in ds.coords
+              else np.array([f"{v:g}kt" for v in speeds]))
+    x = speeds.copy()
+    moved: list[str] = []
+    for speed in np.unique(speeds):
+        here = list(dict.fromkeys(labels[speeds == speed]))
+        if len(here) < 2:
+            continue
+        moved += here
+        for k, label in enumerate(here):
+            x[(speeds == speed) & (labels == label)] += (k - (len(here) - 1) / 2) * 0.05 * span
+    return x, moved
+
+
 def plot_derivatives(ds: xr.Dataset, path: str | Path) -> Path | None:
-    """Grid of every estimated parameter against airspeed (CR bars, truth line); PNG."""
+    """Grid of every estimated parameter against airspeed (CR bars, truth line; groups that
+    share an airspeed side by side, :func:`group_positions`); PNG."""
     import matplotlib  # deferred: optional heavy dependency, only for the figure
 
     matplotlib.use("Agg")
@@ -882,8 +903,8 @@ def plot_derivatives(ds: xr.Dataset, path: str | Path) -> Path | None:
     ncols = 6
     nrows = math.ceil(len(params) / ncols)
     fig, axes = plt.subplots(nrows, ncols, figsize=(3.0 * ncols, 2.3 * nrows), squeeze=False)
-    speeds = ok.airspeed_kt.values
-    span = max(float(np.ptp(speeds)) if speeds.size else 0.0, 40.0)
+    span = max(float(np.ptp(ok.airspeed_kt.values)) if ok.sizes["condition"] else 0.0, 40.0)
+    speeds, moved = group_positions(ok, span)
     styles = {"frequency_domain": ("C0", "o", -0.012), "time_domain": ("C3", "s", 0.012)}
     for ax, name in zip(axes.flat, params):
         limit = _plot_limit(ok["value"].sel(parameter=name).values,
@@ -907,9 +928,10 @@ def plot_derivatives(ds: xr.Dataset, path: str | Path) -> Path | None:
                 ax.plot(speeds[far] + shift * span, np.sign(v[far]) * limit,
                         "^" if np.all(v[far] > 0) else "v", mfc="none", color=color, ms=5)
         truth = ok["truth"].sel(parameter=name)
-        t = truth.groupby(ok.airspeed_kt).mean() if truth.notnull().any() else None
-        if t is not None:
-            ax.plot(t.airspeed_kt.values, t.values, "k-", marker="_", ms=14, lw=1.2, label="truth")
+        if truth.notnull().any():  # per position: two structures' truths differ
+            t = truth.assign_coords(x=("condition", speeds)).groupby("x").mean()
+            ax.plot(t.x.values, t.values, color="k", ls="none" if moved else "-", marker="_",
+                    ms=14, lw=1.2, label="truth")
         # A fixed title height and at most 5 ticks per axis: matplotlib otherwise measures
         # every axis to place each title and builds ~8 ticks per axis (together 70 % of
         # the figure's 1.8 s, serial work of the batch driver).
@@ -927,7 +949,8 @@ def plot_derivatives(ds: xr.Dataset, path: str | Path) -> Path | None:
         fig.legend(handles, labels, loc="upper right", fontsize=8, ncol=3)
     failed = [str(c) for c in ds.condition.values[ds.status.values != "ok"]]
     fig.suptitle("Identified parameters against airspeed (bars: Cramer-Rao bound; line: truth "
-                 "linearisation)" + (f"; failed: {', '.join(failed)}" if failed else ""),
+                 "linearisation)" + (f"; failed: {', '.join(failed)}" if failed else "")
+                 + (f"\nside by side, left to right: {', '.join(moved)}" if moved else ""),
                  fontsize=10)
     # Fixed margins (inches, for the fixed panel size) rather than tight_layout, which drew
     # the whole grid twice more: 54 % of the figure's time, serial work of the batch driver.
@@ -1230,8 +1253,8 @@ def default_conditions(*, quick: bool = False) -> list[Condition]:
 
 __all__ = ["Condition", "BatchResult", "conditions", "load_conditions", "default_conditions",
            "run_batch", "run_condition", "run_condition_part", "condition_summary", "combine",
-           "plot_derivatives", "monte_carlo", "calibration", "format_calibration",
-           "plot_calibration", "CALIBRATION_BOUNDS", "CALIBRATION_GOAL", "structure_for", "quick_campaign", "read_batch",
-           "DEFAULT_SPEEDS",
-           "FORWARD_FLIGHT_KT"]
+           "plot_derivatives", "group_positions", "seed_groups", "monte_carlo",
+           "calibration", "format_calibration", "plot_calibration", "CALIBRATION_BOUNDS",
+           "CALIBRATION_GOAL", "structure_for", "quick_campaign", "read_batch",
+           "DEFAULT_SPEEDS", "FORWARD_FLIGHT_KT"]
 
