@@ -874,8 +874,7 @@ def group_positions(ds: xr.Dataset, span: float) -> tuple[np.ndarray, list[str]]
     airspeed (two structures or campaign designs side by side, not on top of each other);
     and the groups so moved, in their left-to-right order."""
     speeds = np.asarray(ds.airspeed_kt.values, dtype=float)
-    labels = (np.asarray(ds["group"].values, dtype=str) if "group" in ds.coords
-              else np.array([f"{v:g}kt" for v in speeds]))
+    labels = _group_labels(ds)
     x = speeds.copy()
     moved: list[str] = []
     for speed in np.unique(speeds):
@@ -978,6 +977,14 @@ def _plot_limit(values: np.ndarray, truth: np.ndarray) -> float:
     return OFF_SCALE_FACTOR * scale if scale > 0 else np.inf
 
 
+def _group_labels(ds: xr.Dataset) -> np.ndarray:
+    """:attr:`Condition.group` of each condition of ``ds`` (by airspeed alone in a
+    ``batch.nc`` written before the ``group`` coordinate)."""
+    if "group" in ds.coords:
+        return np.asarray(ds["group"].values, dtype=str)
+    return np.array([f"{float(v):g}kt" for v in ds.airspeed_kt.values])
+
+
 def seed_groups(ds: xr.Dataset) -> list[tuple[str, float, xr.Dataset]]:
     """The successful conditions of a ``batch.nc`` Dataset pooled over seeds: ``(group,
     airspeed_kt, part)`` for every :attr:`Condition.group` (the same airspeed, structure,
@@ -985,8 +992,7 @@ def seed_groups(ds: xr.Dataset) -> list[tuple[str, float, xr.Dataset]]:
     coordinate) with at least two, ordered by airspeed. Why: a scatter over seeds is only
     one setting's; two structures or campaigns at one airspeed are not seeds of one."""
     ok = ds.isel(condition=np.flatnonzero(ds.status.values == "ok"))
-    labels = (ok["group"].values if "group" in ok.coords
-              else np.array([f"{float(v):g}kt" for v in ok.airspeed_kt.values]))
+    labels = _group_labels(ok)
     out = []
     for label in dict.fromkeys(map(str, labels)):
         part = ok.isel(condition=np.flatnonzero(labels == label))
