@@ -586,9 +586,9 @@ class BatchResult:
 #: statistical profiler, which samples the task's stack every 10 ms (a further ~10 %):
 #: docs/notes/2026-11-26-batch-worker-malloc-trim.md. On Linux the workers are forked from
 #: the driver, which has imported the study's modules, rather than spawned (each importing
-#: them again): the cluster starts in 0.15 s instead of 1.6-3.4 s, serial time in every
-#: batch (docs/notes/2026-11-27-batch-forked-workers.md); a forked worker keeps the driver's
-#: BLAS thread pool, and every part limits it again (``run_study``).
+#: them again): the cluster starts in 0.11 s instead of 1.7 s on an idle machine, serial
+#: time in every batch (docs/notes/2026-11-27-batch-forked-workers.md); a forked worker
+#: keeps the driver's BLAS thread pool, and every part limits it again (``run_study``).
 WORKER_CONFIG = {
     "distributed.nanny.pre-spawn-environ": {
         "OPENBLAS_NUM_THREADS": 1, "OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1},
