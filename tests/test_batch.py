@@ -2,9 +2,10 @@
 
 The default run flies two reduced (``quick``) hover seeds (the
 reduced form of the bounds' Monte Carlo calibration), one impossible condition (400 kt:
-the trim refuses it), one with an injected divergence and one whose identification stages
-fail on a structure file with a typo (its exception must reach batch.nc) on a 2-worker
-LocalCluster (one study takes about a minute of CPU); the exhaustive form
+the trim refuses it), one with an injected divergence, one whose identification stages
+fail on a structure file with a typo (its exception must reach batch.nc) and, with forked
+workers, one whose worker process dies (restarted and killed again until Dask gives up) on
+a 2-worker LocalCluster (one study takes about a minute of CPU); the exhaustive form
 (SYSID_EXHAUSTIVE=1) runs the issue's six full-size conditions plus the failing one.
 Numbers are checked against the truth model's own linearisation, not against the code's
 output.
@@ -12,16 +13,19 @@ output.
 
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
 import xarray as xr
 
 from sysid.assess.comparison import DOMINANT
-from sysid.pipeline.batch import (Condition, _ReadyParts, calibration, combine, conditions,
-                                  format_calibration, format_monte_carlo, group_positions,
-                                  load_conditions, monte_carlo, plot_calibration,
-                                  plot_derivatives, run_batch, structure_for, study_settings)
+from sysid.pipeline import batch as batch_module
+from sysid.pipeline.batch import (WORKER_CONFIG, Condition, _ReadyParts, calibration, combine,
+                                  conditions, format_calibration, format_monte_carlo,
+                                  group_positions, load_conditions, monte_carlo,
+                                  plot_calibration, plot_derivatives, run_batch, structure_for,
+                                  study_settings)
 from sysid.core.errors import InputDataError
 
 EXHAUSTIVE = os.environ.get("SYSID_EXHAUSTIVE") == "1"
@@ -323,7 +327,7 @@ def test_calibration_of_the_bounds_against_a_known_scatter(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.fmu
-def test_batch_on_local_cluster_survives_a_failing_condition(tmp_path, truth_fmu):
+def test_batch_on_local_cluster_survives_a_failing_condition(tmp_path, truth_fmu, monkeypatch):
     # Default: only the two hover seeds the reduced calibration needs (every check below runs
     # on them; the quick 100-kt condition that flew beside them was one more whole study, and
     # forward flight is covered by the exhaustive form and by tests/test_forward_flight.py).
@@ -344,8 +348,28 @@ def test_batch_on_local_cluster_survives_a_failing_condition(tmp_path, truth_fmu
         "N_r = { value = -0.3185 }", "N_r = { valeu = -0.3185 }"))
     broken = Condition(20.0, quick=True, structure=str(typo))
     everything = good + [bad, diverging, broken]
+    # And, where the workers are forked from this process (Linux: WORKER_CONFIG), one whose
+    # worker process dies in its first part (os._exit, as a segfaulting FMU or the kernel's
+    # OOM killer would end it): the forked workers inherit this patch of the driver's module.
+    forked = WORKER_CONFIG["distributed.worker.multiprocessing-method"] == "fork"
+    dying = Condition(60.0, quick=True)
+    if forked:
+        study = batch_module.run_study
+
+        def run_or_die(folder, *args, **kwargs):
+            if Path(folder).name == dying.name:
+                os._exit(3)
+            return study(folder, *args, **kwargs)
+
+        monkeypatch.setattr(batch_module, "run_study", run_or_die)
+        everything.append(dying)
     result = run_batch(everything, tmp_path, n_workers=2, quiet=True,
                        inject_failure={diverging.name: "SimulationDiverged"})
+    if forked:  # reported as the condition's failure; the batch and the others go on
+        assert result.dataset.status.sel(condition=dying.name) == "failed"
+        assert str(result.dataset.error.sel(condition=dying.name).values).startswith(
+            "KilledWorker"), str(result.dataset.error.sel(condition=dying.name).values)
+        assert not (tmp_path / dying.name / "condition.json").exists()
     assert result.dataset.status.sel(condition=diverging.name) == "failed"
     assert "SimulationDiverged" in str(result.dataset.error.sel(condition=diverging.name).values)
     ds = result.dataset
@@ -363,7 +387,7 @@ def test_batch_on_local_cluster_survives_a_failing_condition(tmp_path, truth_fmu
         {str(k): str(v) for k, v in zip(ds.condition.values, ds.error.values)}
     # Written atomically and readable by plain netCDF, the failing stage's message with it.
     on_disk = xr.open_dataset(tmp_path / "batch.nc")
-    assert on_disk.sizes["condition"] == len(good) + 3
+    assert on_disk.sizes["condition"] == len(good) + 3 + forked
     assert str(on_disk.error.sel(condition=broken.name).values) == error
     on_disk.close()
     assert (tmp_path / "batch_derivatives.png").stat().st_size > 10_000

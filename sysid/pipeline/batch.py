@@ -81,6 +81,7 @@ The ``batch.nc`` Dataset (dims ``condition``, ``model`` (the identification meth
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import heapq
@@ -601,16 +602,13 @@ WORKER_CONFIG = {
 def _client(scheduler: str | None, n_workers: int, quiet: bool):
     import logging
 
-    import dask
-
     from distributed import Client, LocalCluster  # deferred: optional heavy dependency
 
     if scheduler:
         return Client(scheduler), None
-    with dask.config.set(WORKER_CONFIG):
-        cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
-                               dashboard_address=":0",
-                               silence_logs=logging.ERROR if quiet else logging.WARNING)
+    cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                           dashboard_address=":0",
+                           silence_logs=logging.ERROR if quiet else logging.WARNING)
     return Client(cluster), cluster
 
 
@@ -693,8 +691,17 @@ def run_batch(conditions: Sequence[Condition], out_dir: str | Path, *,
         else:
             todo.append(c)
 
+    settings = contextlib.ExitStack()
     if todo:
         build_fmu()  # once here, so workers never race to build the truth FMU
+        if scheduler is None:  # for the cluster's whole life: a worker that dies is
+            # started again as the first ones were (forked, WORKER_CONFIG). distributed is
+            # imported first: its defaults must be in dask's config before the settings go
+            # over them, or leaving the settings deletes the section they created.
+            import dask
+            import distributed  # noqa: F401
+
+            settings.enter_context(dask.config.set(WORKER_CONFIG))
         client, cluster = _client(scheduler, n_workers, quiet)
         try:
             from distributed import as_completed  # deferred: optional heavy dependency
@@ -767,6 +774,7 @@ def run_batch(conditions: Sequence[Condition], out_dir: str | Path, *,
                     dispatch()
         except BaseException:
             _close(client, cluster)
+            settings.close()
             raise
         # The workers shut down (~0.5 s) while the driver combines and draws.
         closing = threading.Thread(target=_close, args=(client, cluster),
@@ -777,6 +785,7 @@ def run_batch(conditions: Sequence[Condition], out_dir: str | Path, *,
     finally:
         if todo:
             closing.join()
+        settings.close()
 
 
 def _close(client, cluster) -> None:
