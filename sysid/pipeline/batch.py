@@ -702,7 +702,11 @@ def run_batch(conditions: Sequence[Condition], out_dir: str | Path, *,
             import distributed  # noqa: F401
 
             settings.enter_context(dask.config.set(WORKER_CONFIG))
-        client, cluster = _client(scheduler, n_workers, quiet)
+        try:
+            client, cluster = _client(scheduler, n_workers, quiet)
+        except BaseException:
+            settings.close()
+            raise
         try:
             from distributed import as_completed  # deferred: optional heavy dependency
 
