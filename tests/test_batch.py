@@ -418,8 +418,9 @@ def test_batch_on_local_cluster_survives_a_failing_condition(tmp_path, truth_fmu
 @pytest.mark.fmu
 def test_worker_settings_do_not_outlive_a_cluster_that_fails_to_start(tmp_path, monkeypatch,
                                                                        truth_fmu):
-    """The batch sets WORKER_CONFIG in dask's global config for its cluster's life only: a
-    cluster that cannot start leaves the config as it was, and the error reaches the caller."""
+    """The batch sets WORKER_CONFIG in dask's global config for its cluster's life only (it is
+    set while the cluster starts): a cluster that cannot start leaves the config as it was,
+    and the error reaches the caller."""
     import dask
     import distributed  # noqa: F401  (its defaults in the config, as any caller would have)
 
@@ -430,7 +431,7 @@ def test_worker_settings_do_not_outlive_a_cluster_that_fails_to_start(tmp_path, 
             WORKER_CONFIG["distributed.worker.multiprocessing-method"]
         raise OSError("no cluster here")
 
-    monkeypatch.setattr(batch_module, "_client", refuse)
+    monkeypatch.setattr(distributed, "LocalCluster", refuse)
     with pytest.raises(OSError, match="no cluster here"):
         run_batch([Condition(0.0, seed=1, quick=True)], tmp_path, quiet=True)
     assert dask.config.get("distributed.worker.multiprocessing-method") == before

@@ -599,13 +599,21 @@ WORKER_CONFIG = {
 }
 
 
-def _client(scheduler: str | None, n_workers: int, quiet: bool):
+def _client(scheduler: str | None, n_workers: int, quiet: bool,
+            settings: contextlib.ExitStack):
+    """A client of ``scheduler``, or of a new LocalCluster whose :data:`WORKER_CONFIG` is
+    entered into ``settings`` for the cluster's whole life (a worker that dies is started
+    again as the first ones were); the caller closes ``settings`` after the cluster."""
     import logging
 
+    import dask
+    # imported before the settings: leaving dask.config.set deletes the config sections that
+    # did not exist when it was entered, distributed's defaults among them
     from distributed import Client, LocalCluster  # deferred: optional heavy dependency
 
     if scheduler:
         return Client(scheduler), None
+    settings.enter_context(dask.config.set(WORKER_CONFIG))
     cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
                            dashboard_address=":0",
                            silence_logs=logging.ERROR if quiet else logging.WARNING)
@@ -694,16 +702,8 @@ def run_batch(conditions: Sequence[Condition], out_dir: str | Path, *,
     settings = contextlib.ExitStack()
     if todo:
         build_fmu()  # once here, so workers never race to build the truth FMU
-        if scheduler is None:  # for the cluster's whole life: a worker that dies is
-            # started again as the first ones were (forked, WORKER_CONFIG). distributed is
-            # imported first: its defaults must be in dask's config before the settings go
-            # over them, or leaving the settings deletes the section they created.
-            import dask
-            import distributed  # noqa: F401
-
-            settings.enter_context(dask.config.set(WORKER_CONFIG))
         try:
-            client, cluster = _client(scheduler, n_workers, quiet)
+            client, cluster = _client(scheduler, n_workers, quiet, settings)
         except BaseException:
             settings.close()
             raise
