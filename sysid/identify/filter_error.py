@@ -81,6 +81,8 @@ Golub, G. H., Pereyra, V., "The differentiation of pseudo-inverses and nonlinear
 squares problems whose variables separate", SIAM J. Numer. Anal. 10(2), 1973; Kaufman, L.,
 "A variable projection method for solving separable nonlinear least squares problems",
 BIT 15, 1975.
+Van Loan, C. F., "Computing integrals involving the matrix exponential", IEEE Trans.
+Automat. Contr. 23(3), 1978 (the Frechet derivative as a block of one exponential).
 """
 
 from __future__ import annotations
@@ -110,7 +112,7 @@ from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
 from sysid.identify.time_domain import (COST_SETTLED, MAX_COST_INCREASE, SOLVE_SETTLED,
                                         OutputErrorModel, _chol_solve, _delayed,
                                         _independent_gram, fit_inputs)
-from sysid.models import LinearStructure, discretize, propagate
+from sysid.models import LinearStructure, discretize, matrix_powers, propagate
 
 __all__ = ["FilterErrorResult", "identify_filter_error", "process_noise_states",
            "WHITENESS_LAGS", "NOISE_STARTS", "SCREEN_PASSES", "MAX_SCREEN_PROCESSES"]
@@ -427,14 +429,18 @@ class _Predictor:
             X = propagate(Phi - K @ C, V @ Gam.T + ZD @ K.T)
             E = ZD - X @ C.T
             # ... plus the bias and initial state, which enter linearly
-            Sx, De = own[rec.dt][0][:N], own[rec.dt][1][:N]
+            Pw, Sw, De = (a[:N] for a in own[rec.dt])
             if b is None:
                 c = self._nuisance(run, r, E)
             else:
                 c = np.concatenate([b[r] if self.biases else [], x0[r] if self.initial_state
                                     else []])
-            if self.n_rec:
-                X = X + Sx @ c
+            if self.n_rec:  # x^ += Acl^k x0 - sum_(i<k) Acl^i K b
+                nb = self.p if self.biases else 0
+                if self.biases:
+                    X = X - (Sw.reshape(-1, self.n) @ (K @ c[:nb])).reshape(N, self.n)
+                if self.initial_state:
+                    X = X + (Pw.reshape(-1, self.n) @ c[nb:]).reshape(N, self.n)
                 E = E + De @ c
             run["nuisance"][r] = c
             run["V"].append(V)
@@ -444,35 +450,40 @@ class _Predictor:
         self._state = (beta.copy(), run)
         return run
 
-    def _own_sensitivities(self, Acl, K, C, N) -> tuple[np.ndarray, np.ndarray]:
-        """``(dx^/dc, de/dc)``, (N, n, n_rec) and (N, p, n_rec), of a record's bias and
-        initial state ``c`` over ``N`` samples: the initial state decays as ``Acl^k``, a
-        bias enters as ``-K b`` and ``-b``. The same for every record of one sample
+    def _own_sensitivities(self, Acl, K, C, N) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(P, S, De)`` of a record's bias and initial state ``c`` over ``N`` samples:
+        ``P[k] = Acl^k`` and ``S[k] = sum_(i<k) Acl^i`` (N, n, n), so that ``dx^[k]/dx0 =
+        P[k]`` and ``dx^[k]/db = -S[k] K`` (the initial state decays, a bias enters as
+        ``-K b``), and ``de/dc`` (N, p, n_rec) ``= -C dx^/dc`` less ``b``. From the powers
+        (:func:`~sysid.models.matrix_powers`); the same for every record of one sample
         interval."""
         n, p = self.n, self.p
-        nb = p if self.biases else 0
-        W = np.zeros((N, n, self.n_rec))
-        X0 = np.zeros((n, self.n_rec))
+        P = matrix_powers(Acl, N)
+        S = np.zeros((N, n, n))
+        np.cumsum(P[:-1], axis=0, out=S[1:])
+        De = np.empty((N, p, self.n_rec))
+        CP = matrix_powers(Acl, N, start=C)  # C Acl^k
         if self.biases:
-            W[:, :, :p] = -K[None]
+            CS = np.zeros((N, p, n))
+            np.cumsum(CP[:-1], axis=0, out=CS[1:])
+            De[:, :, :p] = (CS.reshape(N * p, n) @ K).reshape(N, p, p) - np.eye(p)
         if self.initial_state:
-            X0[np.arange(n), nb + np.arange(n)] = 1.0
-        Sx = propagate(Acl, W, X0)
-        De = -np.matmul(C, Sx)
-        if self.biases:
-            De[:, :, :p] -= np.eye(p)
-        return Sx, De
+            De[:, :, p if self.biases else 0:] = -CP
+        return P, S, De
 
     def _own_factor(self, run, r):
         """``(B_c, keep, L)`` of record ``r``: its whitened bias and initial-state
         sensitivities (N p, n_rec), the columns independent of earlier ones and the Cholesky
         factor of their Gram matrix (cached in ``run``: the solve and the normal equations
-        share it)."""
+        share it; the whitened sensitivities are computed once per sample interval, a
+        record's the first N samples)."""
         cache = run.setdefault("own_factor", {})
         if r not in cache:
             rec = self.records[r]
-            Bc = np.matmul(self.whitener, run["own"][rec.dt][1][:len(rec.time)]).reshape(
-                -1, self.n_rec)
+            white = run.setdefault("own_white", {})
+            if rec.dt not in white:
+                white[rec.dt] = np.matmul(self.whitener, run["own"][rec.dt][2])
+            Bc = white[rec.dt][:len(rec.time)].reshape(-1, self.n_rec)
             cache[r] = (Bc, *_independent_gram(Bc.T @ Bc))
         return cache[r]
 
@@ -484,7 +495,7 @@ class _Predictor:
         if not self.n_rec:
             return c
         Bc, keep, L = self._own_factor(run, r)
-        c[keep] = -_chol_solve(L, Bc[:, keep].T @ (E @ self.whitener.T).ravel())
+        c[keep] = -_chol_solve(L, (Bc.T @ (E @ self.whitener.T).ravel())[keep])
         return c
 
     def innovations(self, beta) -> list[np.ndarray]:
@@ -545,28 +556,34 @@ class _Predictor:
     def _discrete_derivatives(self, theta, dt, groups):
         """``dPhi`` (P, n, n) and ``dGamma`` (P, n, G) per non-delay free structure parameter
         (zeros for a delay) at sample interval ``dt``: Frechet derivative of the exponential
-        of ``[[A, Bg], [0, 0]] dt`` for the A parameters, ``Psi dBg`` (``Psi = int_0^dt e^As
-        ds``) for the others."""
+        of ``M = [[A, Bg], [0, 0]] dt`` for the A parameters, the upper right block of the
+        exponential of ``[[M, dM], [0, M]]`` (Van Loan 1978; one batched exponential for all
+        of them), ``Psi dBg`` (``Psi = int_0^dt e^As ds``) for the others."""
         A, B, _, _, _ = self.structure.matrices(theta)
         Bg = np.stack([B[:, g.column] * g.rows for g in groups], axis=1)
         n, G = Bg.shape
-        Mx = np.zeros((n + G, n + G))
-        Mx[:n, :n], Mx[:n, n:] = A * dt, Bg * dt
+        m = n + G
         Psi = discretize(A, np.eye(n), dt)[1]  # int_0^dt e^(As) ds
         dPhi = np.zeros((self.n_theta, n, n))
         dGam = np.zeros((self.n_theta, n, G))
+        in_a = []
         for j, dm in enumerate(self._dmat):
             if dm is None:
                 continue
-            dA, dB = dm[0], dm[1]
-            dBg = np.stack([dB[:, g.column] * g.rows for g in groups], axis=1)
-            if np.any(dA):
-                dM = np.zeros_like(Mx)
-                dM[:n, :n], dM[:n, n:] = dA * dt, dBg * dt
-                dE = scipy.linalg.expm_frechet(Mx, dM, compute_expm=False)
-                dPhi[j], dGam[j] = dE[:n, :n], dE[:n, n:]
+            dBg = np.stack([dm[1][:, g.column] * g.rows for g in groups], axis=1)
+            if np.any(dm[0]):
+                in_a.append((j, dm[0], dBg))
             else:
                 dGam[j] = Psi @ dBg
+        if in_a:
+            Z = np.zeros((len(in_a), 2 * m, 2 * m))
+            Z[:, :n, :n] = Z[:, m:m + n, m:m + n] = A * dt
+            Z[:, :n, n:m] = Z[:, m:m + n, m + n:] = Bg * dt
+            for i, (_, dA, dBg) in enumerate(in_a):
+                Z[i, :n, m:m + n], Z[i, :n, m + n:] = dA * dt, dBg * dt
+            dE = scipy.linalg.expm(Z)[:, :n, m:]
+            idx = [j for j, _, _ in in_a]
+            dPhi[idx], dGam[idx] = dE[:, :, :n], dE[:, :, n:]
         return dPhi, dGam
 
     def _gain_derivatives(self, Phi, C, K, P, noise, R, dPhi, dC):
@@ -661,10 +678,9 @@ class _Predictor:
                 W[:, :, out_cols] -= np.matmul(K, O)
             for j, g in delays:
                 W[:, :, j] = np.outer(dV[:, g] / rec.dt, Gam[:, g])
-            B = np.matmul(WC, propagate(Phi - K @ C, W))
-            if O is not None:  # the direct terms dC x^ + dD u (whitened), then de = -(...)
-                B[:, :, out_cols] += np.matmul(self.whitener, O)
-            np.negative(B, out=B)
+            B = np.matmul(-WC, propagate(Phi - K @ C, W))  # de = -(C dx^ + ...), whitened
+            if O is not None:  # the direct terms dC x^ + dD u
+                B[:, :, out_cols] -= np.matmul(self.whitener, O)
             yield r, B
 
     def jacobian(self, beta) -> np.ndarray:
@@ -709,7 +725,8 @@ class _Predictor:
             rr += float(v @ v)
             if self.n_rec:
                 Bc, keep, L = self._own_factor(run, r)
-                T = scipy.linalg.solve_triangular(L, Bc[:, keep].T @ Ba, lower=True)
+                T = scipy.linalg.solve_triangular(L, (Bc.T @ Ba)[keep], lower=True,
+                                                  check_finite=False)
                 G -= T.T @ T
         return G, g, rr
 

@@ -892,28 +892,25 @@ def _independent_columns(Nm: np.ndarray, rtol: float = 1e-7) -> tuple[np.ndarray
 
 
 def _independent_gram(Gram: np.ndarray, rtol: float = 1e-7) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_independent_columns` from the Gram matrix ``Nm^T Nm`` (k x k) itself."""
-    k = Gram.shape[0]
+    """:func:`_independent_columns` from the Gram matrix ``Nm^T Nm`` (k x k) itself: one
+    LAPACK Cholesky of the kept columns' normalised Gram matrix, repeated without the first
+    column whose pivot (its squared residual after the kept ones before it) is below
+    ``rtol^2``, until none is (the columns before it are unaffected, so this keeps what
+    a column-by-column factorisation keeps)."""
     d = np.sqrt(np.maximum(np.diag(Gram), 0.0))
-    keep = np.zeros(k, dtype=bool)
-    idx: list[int] = []
-    Ln = np.zeros((0, 0))  # Cholesky of the normalised Gram of the kept columns
-    for j in range(k):
-        if d[j] == 0.0:
-            continue
-        g = Gram[idx, j] / (d[idx] * d[j]) if idx else np.zeros(0)
-        w = scipy.linalg.solve_triangular(Ln, g, lower=True) if idx else g
-        r2 = 1.0 - float(w @ w)
-        if r2 <= rtol ** 2:
-            continue
-        m = len(idx)
-        Lnew = np.zeros((m + 1, m + 1))
-        Lnew[:m, :m] = Ln
-        Lnew[m, :m] = w
-        Lnew[m, m] = math.sqrt(r2)
-        Ln, keep[j] = Lnew, True
-        idx.append(j)
-    return keep, Ln * d[idx][:, None]
+    keep = d > 0.0
+    while True:
+        idx = np.flatnonzero(keep)
+        if not len(idx):
+            return keep, np.zeros((0, 0))
+        Gn = Gram[np.ix_(idx, idx)] / np.outer(d[idx], d[idx])
+        Ln, info = scipy.linalg.lapack.dpotrf(Gn, lower=1, clean=1)
+        valid = len(idx) if info == 0 else info - 1  # info > 0: a pivot <= 0 there
+        small = np.flatnonzero(np.diag(Ln)[:valid] ** 2 <= rtol ** 2)
+        bad = small[0] if len(small) else (valid if info > 0 else None)
+        if bad is None:
+            return keep, Ln * d[idx][:, None]
+        keep[idx[bad]] = False
 
 
 def _chol_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:

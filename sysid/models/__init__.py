@@ -10,7 +10,7 @@ re-exported here: ``from sysid.models import simulate``.
 from sysid.models.dataset import delays_summary, parameter_values
 from sysid.models.lti import (frequency_response, model_matrices, residualize_model, statespace,
                               transfer_matrix)
-from sysid.models.simulation import discretize, propagate, simulate
+from sysid.models.simulation import discretize, matrix_powers, propagate, simulate
 from sysid.models.structure import (ALL_ROWS, DELAY_BOUNDS, FORCE_STATES, LinearStructure,
                                     Parameter, model_from_dataset, parse_tied_entries,
                                     six_dof_structure, structure_summary)
@@ -35,6 +35,7 @@ __all__ = [
     "statespace",
     "residualize_model",
     "discretize",
+    "matrix_powers",
     "propagate",
     "simulate",
     "delays_summary",

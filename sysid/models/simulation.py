@@ -29,7 +29,7 @@ from sysid.core.errors import InputDataError
 from sysid.core.units import CHANNELS, channel_attrs
 from sysid.models.lti import model_matrices
 
-__all__ = ["discretize", "propagate", "simulate"]
+__all__ = ["discretize", "matrix_powers", "propagate", "simulate"]
 
 #: From this many right-hand sides on, :func:`propagate` steps the plain recursion.
 _MANY_RHS = 16
@@ -114,6 +114,27 @@ def propagate(Phi, W, x0=None, *, block: int | None = None) -> np.ndarray:
         X[i] += T[i - 1]
     X = X.reshape(L, n, nb, k).transpose(2, 0, 1, 3).reshape(nb * L, n, k)[:N]
     return X[:, :, 0] if squeeze else X
+
+
+def matrix_powers(A, N: int, start=None) -> np.ndarray:
+    """``S A^k`` for ``k = 0 .. N-1``, shape (N, m, n), ``S`` the (m, n) ``start`` (default
+    the identity), by doubling: ``S A^(j+i) = (S A^i) A^j`` for all ``i < j`` in one
+    (j m x n) by (n x n) product per level, about log2(N) products instead of N."""
+    A = np.asarray(A, dtype=float)
+    n = A.shape[0]
+    S = np.eye(n) if start is None else np.asarray(start, dtype=float)
+    m = S.shape[0]
+    P = np.empty((N, m, n))
+    if N == 0:
+        return P
+    P[0] = S
+    j, Aj = 1, A
+    while j < N:
+        c = min(j, N - j)
+        np.matmul(P[:c].reshape(c * m, n), Aj, out=P[j:j + c].reshape(c * m, n))
+        Aj = Aj @ Aj
+        j *= 2
+    return P
 
 
 def _delayed(u: np.ndarray, delay_samples: float) -> np.ndarray:
