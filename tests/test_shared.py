@@ -155,6 +155,37 @@ def test_blas_threads_limits_every_blas_even_before_scipy_is_imported():
     assert out.strip() == "[1]", out
 
 
+@pytest.mark.parametrize("module, entry, inner", [
+    ("sysid.identify.time_domain", "identify_time_domain", "fit_inputs"),
+    ("sysid.identify.frequency_domain", "identify_frequency_domain", "select_fit_data")])
+def test_identification_entry_points_run_with_one_blas_thread(monkeypatch, module, entry,
+                                                              inner):
+    """Called from a user's script with BLAS at two threads, a fit runs its numerics with one
+    and gives the two back (output error on the hover study: 10.1 s of wall at two threads,
+    4.8 s at one)."""
+    import importlib
+    import types
+
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    def blas():
+        return {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
+
+    mod = importlib.import_module(module)
+    seen = []
+
+    def probe(*args, **kwargs):
+        seen.append(blas())
+        raise RuntimeError("probe: stop here")
+
+    monkeypatch.setattr(mod, inner, probe)
+    with threadpool_limits(limits=2, user_api="blas"):
+        with pytest.raises(RuntimeError, match="probe"):
+            getattr(mod, entry)(None, types.SimpleNamespace(attrs={}))
+        assert blas() == {2}
+    assert seen == [{1}]
+
+
 def test_forkserver_start_is_an_optimisation_that_never_fails_the_caller(monkeypatch):
     # where the forkserver cannot start (no sockets, a platform without it) the study goes
     # on: the pools start it later or fall back; in a daemonic process nothing is started
