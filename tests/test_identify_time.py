@@ -20,7 +20,8 @@ from test_identify_frequency import SPURIOUS
 
 from sysid.core.errors import IdentificationError, InputDataError
 from sysid.identify import identify_time_domain
-from sysid.identify.time_domain import OutputErrorModel, fitted_outputs, prepare_records
+from sysid.identify.time_domain import (OutputErrorModel, _independent_columns, fitted_outputs,
+                                        prepare_records)
 from sysid.models import LinearStructure, Parameter
 
 BIAS = {"u": 0.5, "q": -0.3, "theta": 0.2, "r": 0.4}
@@ -579,3 +580,21 @@ def test_decay_lag_counts_negative_correlation_as_colour():
     assert correlation_lag(C, 4000) == 9
     white = np.r_[1.0, np.zeros(15)][:, None, None]
     assert correlation_lag(white, 4000) == 0
+
+
+def test_independent_columns_drop_what_earlier_columns_span():
+    """Planted dependencies: a combination of earlier columns, a zero column and a copy
+    within 1e-12 are dropped, a later column independent of the kept ones is kept, and the
+    factor is the Cholesky factor of the kept columns' Gram matrix."""
+    rng = np.random.default_rng(4)
+    a, b, c = (rng.standard_normal(300) * s for s in (1.0, 50.0, 0.02))
+    Nm = np.stack([a, b, 2 * a - b / 50, np.zeros(300), c, a + 1e-12 * rng.standard_normal(300),
+                   b + c], axis=1)
+    keep, L = _independent_columns(Nm)
+    assert keep.tolist() == [True, True, False, False, True, False, False]
+    K = Nm[:, keep]
+    np.testing.assert_allclose(L @ L.T, K.T @ K, rtol=1e-12)
+    assert np.allclose(L, np.tril(L))
+    keep, L = _independent_columns(Nm[:, [4, 0]])  # nothing to drop
+    assert keep.all() and L.shape == (2, 2)
+    assert not _independent_columns(np.zeros((10, 2)))[0].any()

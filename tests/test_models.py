@@ -14,7 +14,8 @@ from sysid.core.errors import InputDataError
 from sysid.core.kinematics import rigid_body_terms
 from sysid.models import (ALL_ROWS, LinearStructure, Parameter, builtin_structures,
                           declared_coherence_min, discretize, frequency_response,
-                          load_structure, model_from_dataset, model_matrices, propagate,
+                          load_structure, matrix_powers, model_from_dataset, model_matrices,
+                          propagate,
                           simulate, six_dof_structure, statespace)
 from sysid.core.units import CONTROLS, STATES_6DOF
 
@@ -368,6 +369,20 @@ def test_propagate_matches_sequential_recursion():
     for n in range(1003):
         np.testing.assert_allclose(X[n], x, rtol=1e-10, atol=1e-12)
         x = Phi @ x + W[n]
+
+
+@pytest.mark.parametrize("N", [0, 1, 2, 5, 1000])
+def test_matrix_powers_match_numpy_matrix_power(N):
+    rng = np.random.default_rng(1)
+    A = np.eye(5) * 0.97 + 0.03 * rng.standard_normal((5, 5))
+    S = rng.standard_normal((3, 5))
+    P, SP = matrix_powers(A, N), matrix_powers(A, N, start=S)
+    assert P.shape == (N, 5, 5) and SP.shape == (N, 3, 5)
+    for k in range(N):
+        Ak = np.linalg.matrix_power(A, k)
+        np.testing.assert_allclose(P[k], Ak, rtol=1e-10, atol=1e-12 * np.abs(Ak).max())
+        np.testing.assert_allclose(SP[k], S @ Ak, rtol=1e-10,
+                                   atol=1e-12 * np.abs(S @ Ak).max())
 
 
 def test_simulate_matches_scipy_zoh_without_delays():
