@@ -157,7 +157,8 @@ def test_blas_threads_limits_every_blas_even_before_scipy_is_imported():
 
 @pytest.mark.parametrize("module, entry, inner", [
     ("sysid.identify.time_domain", "identify_time_domain", "fit_inputs"),
-    ("sysid.identify.frequency_domain", "identify_frequency_domain", "select_fit_data")])
+    ("sysid.identify.frequency_domain", "identify_frequency_domain", "select_fit_data"),
+    ("sysid.identify.filter_error", "identify_filter_error", "_best_start")])
 def test_identification_entry_points_run_with_one_blas_thread(monkeypatch, module, entry,
                                                               inner):
     """Called from a user's script with BLAS at two threads, a fit runs its numerics with one

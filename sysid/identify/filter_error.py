@@ -100,7 +100,7 @@ import scipy.optimize
 import xarray as xr
 
 from sysid.core.errors import IdentificationError, InputDataError
-from sysid.core.util import (POOL_FAILURES, blas_threads, forkserver_context,
+from sysid.core.util import (POOL_FAILURES, forkserver_context, one_blas_thread,
                              worker_processes)
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters, ParameterStatistics,
                                       add_corrected_bounds, coloured_residual_covariance,
@@ -782,6 +782,7 @@ def _whiteness(E: list[np.ndarray], whitener: np.ndarray, lags: int) -> np.ndarr
     return num / den[:, None]
 
 
+@one_blas_thread
 def identify_filter_error(records, structure: LinearStructure, *,
                           start: xr.Dataset | np.ndarray | None = None,
                           outputs: Sequence[str] | None = None, process_noise="full",
@@ -869,30 +870,29 @@ def identify_filter_error(records, structure: LinearStructure, *,
     kw = dict(outputs=outputs, process_noise=process_noise, biases=biases,
               initial_state=initial_state, tol=tol, max_passes=max_passes, cost_tol=cost_tol,
               max_nfev=max_nfev)
-    with blas_threads():  # small matrices: one BLAS thread is faster and counts fair CPU
-        cpu0 = time.process_time()
-        full = _best_start(records, structure, start=start, noise_starts=noise_starts,
-                           progress=progress, **kw)
-        if not reduce:
-            full.cpu_time = time.process_time() - cpu0 + full.cpu_elsewhere
-            full.model.attrs["cpu_time_s"] = full.cpu_time
-            return full
+    cpu0 = time.process_time()
+    full = _best_start(records, structure, start=start, noise_starts=noise_starts,
+                       progress=progress, **kw)
+    if not reduce:
+        full.cpu_time = time.process_time() - cpu0 + full.cpu_elsewhere
+        full.model.attrs["cpu_time_s"] = full.cpu_time
+        return full
 
-        def refit(removed, previous, ceiling):
-            prev: FilterErrorResult = previous.payload
-            st = structure.fix(removed, 0.0)
-            theta0 = conditional_start(prev.statistics, removed[-1], st.free_names)
-            # statistics only for a refit the reduction keeps, corrected bounds only for
-            # the one it ends with (the same decisions and result, a tenth less CPU)
-            r = _fit(records, st, start=theta0, warm=prev.noise_and_nuisance,
-                     ceiling=ceiling, corrected=False, **kw)
-            return FitOutcome(r.cost, getattr(r, "statistics", None), r)
+    def refit(removed, previous, ceiling):
+        prev: FilterErrorResult = previous.payload
+        st = structure.fix(removed, 0.0)
+        theta0 = conditional_start(prev.statistics, removed[-1], st.free_names)
+        # statistics only for a refit the reduction keeps, corrected bounds only for
+        # the one it ends with (the same decisions and result, a tenth less CPU)
+        r = _fit(records, st, start=theta0, warm=prev.noise_and_nuisance,
+                 ceiling=ceiling, corrected=False, **kw)
+        return FitOutcome(r.cost, getattr(r, "statistics", None), r)
 
-        reduction = stepwise_reduction(
-            refit, FitOutcome(full.cost, full.statistics, full), cr_max=cr_max,
-            insensitivity_max=insensitivity_max, max_cost_increase=max_cost_increase,
-            protected=(*protected, *structure.kept_names), progress=progress)
-        _add_coloured(reduction.final.payload)
+    reduction = stepwise_reduction(
+        refit, FitOutcome(full.cost, full.statistics, full), cr_max=cr_max,
+        insensitivity_max=insensitivity_max, max_cost_increase=max_cost_increase,
+        protected=(*protected, *structure.kept_names), progress=progress)
+    _add_coloured(reduction.final.payload)
     final: FilterErrorResult = reduction.final.payload
     final.reduction = reduction
     final.full_statistics = full.statistics
@@ -944,14 +944,13 @@ def _best_start(records, structure, *, start, noise_starts, progress, **kw):
     return best
 
 
+@one_blas_thread
 def _screen_one(records, structure, start, noise_start, screen):
     """One noise start's screening passes, or the IdentificationError that ended them."""
-    with blas_threads():
-        try:
-            return _fit(records, structure, start=start, noise_start=tuple(noise_start),
-                        **screen)
-        except IdentificationError as exc:
-            return exc
+    try:
+        return _fit(records, structure, start=start, noise_start=tuple(noise_start), **screen)
+    except IdentificationError as exc:
+        return exc
 
 
 def _screened(records, structure, start, noise_starts, screen, progress=None
