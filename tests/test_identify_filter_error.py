@@ -240,8 +240,9 @@ def test_noise_starts_screened_in_processes_give_the_same_fit(monkeypatch):
     assert "screening processes failed (BrokenProcessPool: no children here)" in lines.getvalue()
 
 
-@pytest.mark.parametrize("tied", [False, True])
-def test_analytic_sensitivities_match_central_differences(tied):
+@pytest.mark.parametrize("tied, biases, initial_state", [
+    (False, True, True), (True, True, True), (False, True, False), (False, False, True)])
+def test_analytic_sensitivities_match_central_differences(tied, biases, initial_state):
     """The innovation sensitivities of the solver and the bounds (predictor sensitivity
     equations, Riccati derivative from a Lyapunov equation) against central differences of
     the whitened innovations, off the optimum, on the heave/pitch system with a free delay
@@ -252,7 +253,8 @@ def test_analytic_sensitivities_match_central_differences(tied):
     scale), so a tied A and a tied B entry reach C and D through the output equation.
     Measured: largest column error 2e-9 relative. The compressed problem handed to the
     solver (bias and initial state solved for) has the projected problem's cost, gradient
-    and Gauss-Newton matrix."""
+    and Gauss-Newton matrix. Also with only the biases or only the initial states as
+    nuisance parameters."""
     from sysid.identify import filter_error as fe
     from sysid.identify.time_domain import fit_inputs
     where = {"Z_w": ("A", "w", "w"), "Z_q": ("A", "w", "q"), "M_w": ("A", "q", "w"),
@@ -272,7 +274,8 @@ def test_analytic_sensitivities_match_central_differences(tied):
         r["az"] = ("time", az)
         r.attrs["trim_az"] = 0.0
     _, outs, prep = fit_inputs(recs, st, None, what="test")
-    pred = fe._Predictor(st, prep, outs, fe._noise_mask("full", st.states), True, True)
+    pred = fe._Predictor(st, prep, outs, fe._noise_mask("full", st.states), biases,
+                         initial_state)
     pred.r0 = 0.3
     pred.set_whitener(np.array([[1.0, 0.0, 0.0], [0.3, 2.0, 0.0], [-0.2, 0.1, 0.5]]))
     theta = st.theta0 * (1.0 + 0.2 * rng.standard_normal(st.theta0.size))
