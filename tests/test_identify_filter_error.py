@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 
 import numpy as np
@@ -427,3 +428,43 @@ def test_reduction_removes_the_coupling_the_truth_lacks():
         np.testing.assert_allclose(corrected, fe.statistics.cramer_rao, rtol=0.25)
         np.testing.assert_array_less(np.abs(fe.theta - np.array(
             [truth[n] for n in fe.structure.free_names])), 4 * fe.statistics.cramer_rao)
+
+
+def test_refused_refits_stop_early_and_change_no_decision(monkeypatch):
+    """The early refusal (REFUSAL_MIN_GAP): on the heave/pitch truth without M_w the refit
+    without Z_w stays 4.3 above its ceiling with 0.6 of decrease predicted, short of the
+    default margin of 10 (the truth FMU's refits, docs/notes/2026-11-28-filter-error-early-
+    refusal.md); at a margin of 2 it stops there, flagged as not converged, with fewer
+    evaluations, and every decision, the final estimates and bounds are those of refits run
+    to convergence (an accepted refit never meets the rule, so it is untouched)."""
+    from sysid.identify import filter_error as fe_module
+    from sysid.identify import reduction
+    monkeypatch.setattr(reduction, "REFUSAL_MARGIN", 2.0)
+    evaluations = []
+    normal_equations = fe_module._Predictor.normal_equations
+
+    def counted(self, alpha):
+        evaluations.append(1)
+        return normal_equations(self, alpha)
+
+    monkeypatch.setattr(fe_module._Predictor, "normal_equations", counted)
+    truth = {**TRUTH, "M_w": 0.0}
+    recs = records(1, gust=MC_GUST, rate_gain=MC_RATE_GAIN, truth=truth)
+    st = structure(truth)
+    early = identify_filter_error(recs, st, start=st.theta0 * 1.1, reduce=True)
+    n_early = len(evaluations)
+    gap = fe_module.REFUSAL_MIN_GAP
+    monkeypatch.setattr(fe_module, "REFUSAL_MIN_GAP", math.inf)
+    full = identify_filter_error(recs, st, start=st.theta0 * 1.1, reduce=True)
+    assert [(s.parameter, s.accepted) for s in early.reduction.steps] == \
+        [(s.parameter, s.accepted) for s in full.reduction.steps]
+    np.testing.assert_array_equal(early.theta, full.theta)
+    np.testing.assert_array_equal(early.statistics.cramer_rao, full.statistics.cramer_rao)
+    stopped = [s for s in early.reduction.steps if not s.converged]
+    assert stopped and all(not s.accepted for s in stopped), early.reduction.table()
+    assert all(s.converged for s in full.reduction.steps)
+    for a, b in zip(early.reduction.steps, full.reduction.steps):
+        if not a.converged:  # stopped where it could no longer come under its ceiling
+            assert a.cost_after >= b.cost_after - 1e-6
+            assert a.cost_after > a.cost_before + 5.41 + gap
+    assert n_early < len(evaluations) - n_early

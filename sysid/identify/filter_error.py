@@ -108,7 +108,8 @@ from sysid.identify.statistics import (ColouredBounds, FitResultParameters, Para
 from sysid.identify.least_squares import (STALL_WINDOW, Settled, SolveStopped,
                                           predicted_decrease, stall_watch)
 from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
-                                     conditional_start, stepwise_reduction)
+                                     StoppedAboveCeiling, conditional_start,
+                                     refusal_certain, stepwise_reduction)
 from sysid.identify.time_domain import (COST_SETTLED, MAX_COST_INCREASE, SOLVE_SETTLED,
                                         OutputErrorModel, _chol_solve, _delayed,
                                         _independent_gram, fit_inputs)
@@ -150,6 +151,16 @@ MAX_SCREEN_PROCESSES = 4
 #: campaigns the first fit took 36 % less CPU and ended at the same L to 0.04 on five, 0.4
 #: and 1.5 higher on two, 5.9 lower on one (docs/notes/2026-11-27-filter-error-first-pass.md).
 FIRST_PASS_SETTLED = 1.0
+#: A reduction refit stops, refused, at an accepted iterate where its likelihood (the
+#: innovation covariance re-estimated there) lies above the likelihood-ratio ceiling by more
+#: than REFUSAL_MARGIN times the decrease the pass's Gauss-Newton model still predicts
+#: (:func:`~sysid.identify.reduction.refusal_certain`) and by more than this (L units). On
+#: 176 refits of 21 fits (hover_6dof, hover_hybrid and hover_hybrid_inflow on six hover
+#: campaigns, forward_6dof on three at 80 kt) no accepted one fired it (largest gap over
+#: prediction 1.37 where the gap exceeded this; 4.70 for a refit creeping 0.3 above its
+#: ceiling, which this floor covers), and it saved 26-47 % of the refits' evaluations
+#: (docs/notes/2026-11-28-filter-error-early-refusal.md).
+REFUSAL_MIN_GAP = 1.0
 #: Whitened residual returned for every sample of a trial model whose Riccati equation has
 #: no stabilising solution (the solver then rejects the step).
 _FAILED_RESIDUAL = 1e6
@@ -834,7 +845,9 @@ def identify_filter_error(records, structure: LinearStructure, *,
         likelihood-ratio threshold), judged on the innovations' bounds; each refit starts
         at the conditional minimum of the last fit's quadratic model with the last fit's
         process noise, measurement noise, biases and initial states (one likelihood
-        basin: from scratch a refit can land in another, tens of units of ``L`` away).
+        basin: from scratch a refit can land in another, tens of units of ``L`` away) and
+        stops, refused, once it can no longer come under the likelihood-ratio ceiling
+        (:data:`REFUSAL_MIN_GAP`).
     noise_starts : sequence of (q, r)
         Noise start values of the first fit, as factors of the default ones (``Q`` and ``R``);
         each is relaxed for :data:`SCREEN_PASSES` passes and the one with the lowest ``L``
@@ -886,7 +899,8 @@ def identify_filter_error(records, structure: LinearStructure, *,
         # the one it ends with (the same decisions and result, a tenth less CPU)
         r = _fit(records, st, start=theta0, warm=prev.noise_and_nuisance,
                  ceiling=ceiling, corrected=False, **kw)
-        return FitOutcome(r.cost, getattr(r, "statistics", None), r)
+        return FitOutcome(r.cost, getattr(r, "statistics", None), r,
+                          converged=getattr(r, "converged", True))
 
     reduction = stepwise_reduction(
         refit, FitOutcome(full.cost, full.statistics, full), cr_max=cr_max,
@@ -987,6 +1001,26 @@ class _Screened:
     passes: int
     cpu_time: float
     noise_and_nuisance: np.ndarray
+    #: False for a refit stopped once it could no longer come under its ceiling
+    converged: bool = True
+
+
+def _refusal_watch(jacobian, pred: _Predictor, ceiling: float, likelihood):
+    """The Jacobian callable ``jacobian`` of a reduction refit's solve, raising
+    :class:`~sysid.identify.reduction.StoppedAboveCeiling` at an accepted iterate whose
+    likelihood ``likelihood(alpha)`` cannot come under ``ceiling`` (:data:`REFUSAL_MIN_GAP`):
+    the Gauss-Newton model's further decrease is ``|q|^2 / 2`` of the compressed residuals
+    ``f = [q, f_N]``."""
+
+    def watched(alpha):
+        f, _ = pred._compressed(alpha)
+        cost = likelihood(alpha)
+        if refusal_certain(cost, cost - 0.5 * float(f[:-1] @ f[:-1]), ceiling,
+                           min_gap=REFUSAL_MIN_GAP):
+            raise StoppedAboveCeiling(alpha, cost, ceiling)
+        return jacobian(alpha)
+
+    return watched
 
 
 def _add_coloured(result: FilterErrorResult) -> None:
@@ -1085,7 +1119,7 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
     method, bounds = (("trf", (lower[:na], upper[:na])) if bounded
                       else ("lm", (-np.inf, np.inf)))
     E, Sigma, cost = innovations(alpha, "at the start")
-    cost_prev, passes = math.inf, 0
+    cost_prev, passes, refused = math.inf, 0, False
     fun, jac = ((pred.residuals, "2-point") if FINITE_DIFFERENCES else
                 (pred.compressed_residuals, pred.compressed_jacobian))
     pred.settle = ((lower[:na], upper[:na]) if SETTLED_SOLVES and not FINITE_DIFFERENCES
@@ -1098,6 +1132,9 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
         if pred.settle is not None and STALL_SOLVES:
             watched = stall_watch(jac, lambda a: 0.5 * float(np.sum(fun(a) ** 2)),
                                   decrease=STALL_WINDOW * SOLVE_SETTLED)
+        if ceiling is not None and not FINITE_DIFFERENCES:
+            watched = _refusal_watch(watched, pred, ceiling,
+                                     lambda a: innovations(a, "in a reduction refit")[2])
         try:
             # a variance at its bound 0 leaves the correlations it scales without effect:
             # zero Jacobian columns, which the trust-region step handles but divides by
@@ -1107,15 +1144,18 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
                     ftol=tol, xtol=tol, gtol=tol, max_nfev=max_nfev).x
         except SolveStopped as stopped:  # Settled or Stalled, at an accepted iterate
             alpha = stopped.theta
+        except StoppedAboveCeiling as stopped:  # a refit the reduction will refuse
+            alpha, refused = stopped.theta, True
         E, Sigma, cost = innovations(alpha, "at the end of a solve")
         nuisance = pred._run(alpha)["nuisance"]  # in the metric of this pass
-        if abs(cost_prev - cost) < cost_tol:
+        if refused or abs(cost_prev - cost) < cost_tol:
             break
         cost_prev = cost
     beta = np.concatenate([alpha, nuisance.ravel()])  # the E that gave Sigma
     if screen or (ceiling is not None and cost > ceiling):
         return _Screened(alpha[:pred.n_theta].copy(), float(cost), int(passes),
-                         time.process_time() - cpu0, beta[pred.n_theta:].copy())
+                         time.process_time() - cpu0, beta[pred.n_theta:].copy(),
+                         converged=not refused)
     pred.set_whitener(np.linalg.inv(np.linalg.cholesky(Sigma)))
     names = pred.names(outs)
     J = (_central_jacobian(pred.residuals, beta, lower, upper) if FINITE_DIFFERENCES

@@ -129,7 +129,7 @@ def _candidate(stats: ParameterStatistics, exclude: set[str], cr_max: float,
 
 
 def refusal_certain(cost: float, model_minimum: float, ceiling: float, *,
-                    margin: float | None = None) -> bool:
+                    margin: float | None = None, min_gap: float = 0.0) -> bool:
     """Whether a least-squares refit at ``cost`` will end above ``ceiling``.
 
     ``model_minimum`` is the minimum over all steps of the Gauss-Newton model at the current
@@ -139,7 +139,8 @@ def refusal_certain(cost: float, model_minimum: float, ceiling: float, *,
         cost - ceiling > margin * (cost - model_minimum)
 
     stops only when even ``margin`` (default :data:`REFUSAL_MARGIN`; inf: never) times
-    that decrease would leave the cost above the ceiling. The argument: the solver's
+    that decrease would leave the cost above the ceiling (and, with ``min_gap``, the cost is
+    more than that above it). The argument: the solver's
     accepted steps never raise the cost, so a trial ends under the ceiling only if it still
     falls by ``cost - ceiling``. Near a minimum the Gauss-Newton model predicts the
     remaining fall to within a small factor (the neglected second-order term is small
@@ -159,7 +160,7 @@ def refusal_certain(cost: float, model_minimum: float, ceiling: float, *,
     if not (np.isfinite(cost) and np.isfinite(model_minimum) and np.isfinite(ceiling)
             and np.isfinite(margin)):
         return False
-    return bool(cost - ceiling > margin * max(cost - model_minimum, 0.0))
+    return bool(cost - ceiling > max(margin * max(cost - model_minimum, 0.0), min_gap))
 
 
 #: ``status`` a fit reports for a trial refit stopped by :func:`ceiling_watch` (scipy's
