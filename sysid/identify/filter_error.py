@@ -157,8 +157,8 @@ FIRST_PASS_SETTLED = 1.0
 #: (:func:`~sysid.identify.reduction.refusal_certain`) and by more than this (L units). On
 #: 176 refits of 21 fits (hover_6dof, hover_hybrid and hover_hybrid_inflow on six hover
 #: campaigns, forward_6dof on three at 80 kt) no accepted one fired it (largest gap over
-#: prediction 1.37 where the gap exceeded this; 4.70 for a refit creeping 0.3 above its
-#: ceiling, which this floor covers), and it saved 26-47 % of the refits' evaluations
+#: prediction 1.37 where the gap exceeded this; 4.70 for a refit creeping 0.2-0.9 above
+#: its ceiling, which this floor covers), and it saved 26-47 % of the refits' evaluations
 #: (docs/notes/2026-11-28-filter-error-early-refusal.md).
 REFUSAL_MIN_GAP = 1.0
 #: Whitened residual returned for every sample of a trial model whose Riccati equation has

@@ -139,10 +139,10 @@ def refusal_certain(cost: float, model_minimum: float, ceiling: float, *,
         cost - ceiling > margin * (cost - model_minimum)
 
     stops only when even ``margin`` (default :data:`REFUSAL_MARGIN`; inf: never) times
-    that decrease would leave the cost above the ceiling (and, with ``min_gap``, the cost is
-    more than that above it). The argument: the solver's
-    accepted steps never raise the cost, so a trial ends under the ceiling only if it still
-    falls by ``cost - ceiling``. Near a minimum the Gauss-Newton model predicts the
+    that decrease would leave the cost above the ceiling (and, with ``min_gap``, the cost
+    lies more than that above it). The argument: the solver's accepted steps never raise
+    the cost, so a trial ends under the ceiling only if it still falls by
+    ``cost - ceiling``. Near a minimum the Gauss-Newton model predicts the
     remaining fall to within a small factor (the neglected second-order term is small
     there; measured 1.5-2.5 on converging refits), and it ignores the parameter bounds,
     which can only raise the real minimum. Far from a minimum the prediction can be wrong
@@ -154,6 +154,8 @@ def refusal_certain(cost: float, model_minimum: float, ceiling: float, *,
     Examples
     --------
     >>> refusal_certain(440.0, 435.0, 12.4), refusal_certain(30.85, 30.26, 30.02)
+    (True, False)
+    >>> refusal_certain(30.85, 30.84, 30.02), refusal_certain(30.85, 30.84, 30.02, min_gap=1.0)
     (True, False)
     """
     margin = REFUSAL_MARGIN if margin is None else margin  # read here: a benchmark sets inf
