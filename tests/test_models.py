@@ -371,6 +371,25 @@ def test_propagate_matches_sequential_recursion():
         x = Phi @ x + W[n]
 
 
+def test_compiled_recursion_matches_the_numpy_steps(monkeypatch):
+    """The many-right-hand-side recursion compiled from recursion.c (where a compiler is)
+    against numpy's step loop: equal to rounding, with an initial state."""
+    import sysid.models.simulation as simulation
+
+    if simulation._native_propagate() is None:
+        pytest.skip("no C compiler here: propagate runs numpy's loop only")
+    rng = np.random.default_rng(3)
+    Phi = np.eye(9) * 0.97 + 0.02 * rng.standard_normal((9, 9))
+    W = rng.standard_normal((700, 9, 52))
+    x0 = rng.standard_normal((9, 52))
+    native = propagate(Phi, W, x0)
+    monkeypatch.setattr(simulation, "_native_propagate", lambda: None)
+    numpy_loop = propagate(Phi, W, x0)
+    np.testing.assert_allclose(native, numpy_loop, rtol=1e-11,
+                               atol=1e-13 * np.abs(numpy_loop).max())
+    np.testing.assert_array_equal(native[0], x0)
+
+
 @pytest.mark.parametrize("N", [0, 1, 2, 5, 1000])
 def test_matrix_powers_match_numpy_matrix_power(N):
     rng = np.random.default_rng(1)

@@ -4,6 +4,7 @@ import math
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -185,6 +186,49 @@ def test_identification_entry_points_run_with_one_blas_thread(monkeypatch, modul
             getattr(mod, entry)(None, types.SimpleNamespace(attrs={}))
         assert blas() == {2}
     assert seen == [{1}]
+
+
+def test_native_kernels_fall_back_and_rebuild(monkeypatch, tmp_path):
+    """A kernel is built into the cache and loaded; a cached file that does not load is
+    rebuilt; without a compiler, or with SYSID_NATIVE=0, the caller gets None (its numpy
+    path) and native_status says why."""
+    import sysid.models.simulation as simulation
+    from sysid.core.native import native_library, native_status
+
+    source = str(Path(simulation.__file__).with_name("recursion.c"))
+    monkeypatch.setenv("SYSID_CACHE_DIR", str(tmp_path))
+    native_library.cache_clear()
+    try:
+        monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
+        assert native_library("recursion", source) is None
+        assert "no-such-cc" in native_status()["recursion"]
+        native_library.cache_clear()
+        monkeypatch.setenv("SYSID_NATIVE", "0")
+        monkeypatch.delenv("CC")
+        assert native_library("recursion", source) is None
+        assert native_status()["recursion"].startswith("off")
+        native_library.cache_clear()
+        monkeypatch.delenv("SYSID_NATIVE")
+        try:
+            from sysid.core.native import find_compiler
+            find_compiler()
+        except Exception:
+            pytest.skip("no C compiler here")
+        assert native_library("recursion", source) is not None
+        built = list((tmp_path / "native").glob("recursion-*.so"))
+        assert len(built) == 1 and native_status()["recursion"] == f"native ({built[0].name})"
+        built[0].write_bytes(b"not a shared library")  # e.g. a truncated copy
+        # a fresh process (this one has the library loaded under that name already)
+        code = ("from sysid.core.native import native_library, native_status\n"
+                f"print(native_library('recursion', {source!r}) is not None,"
+                " native_status()['recursion'])\n")
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                             check=True, env={**os.environ, "SYSID_CACHE_DIR": str(tmp_path)})
+        assert out.stdout.strip() == f"True native ({built[0].name})", out
+        assert built[0].read_bytes() != b"not a shared library"
+        assert list((tmp_path / "native").iterdir()) == built  # no temporary file left
+    finally:
+        native_library.cache_clear()
 
 
 def test_forkserver_start_is_an_optimisation_that_never_fails_the_caller(monkeypatch):

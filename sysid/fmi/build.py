@@ -29,6 +29,7 @@ from pathlib import Path
 
 import sysid
 from sysid.core.errors import FMUError
+from sysid.core.native import find_compiler
 from sysid.core.paths import cache_dir, fmu_sources_dir
 from sysid.core.units import DERIVATIVE_UNIT, DISPLAY_UNITS, UNITS
 from sysid.core.util import atomic_path
@@ -233,21 +234,6 @@ def fmi_header_dir() -> Path:
     if missing:
         raise FMUError(f"FMI headers {missing} not found in {folder}; reinstall fmpy")
     return folder
-
-
-def find_compiler() -> list[str]:
-    """The C compiler command: ``$CC`` if set (no fallback), else cc, gcc or clang."""
-    env = os.environ.get("CC", "").strip()
-    if env:
-        parts = env.split()
-        if shutil.which(parts[0]) is None:
-            raise FMUError(f"C compiler CC={env!r} not found; install a C compiler or fix $CC")
-        return parts
-    for name in ("cc", "gcc", "clang"):
-        if shutil.which(name):
-            return [name]
-    raise FMUError("no C compiler found (tried $CC, cc, gcc, clang); install one "
-                   "(e.g. gcc or clang) to build the FMU from its sources")
 
 
 def platform_folder(fmi_version: int = 2) -> tuple[str, str]:
