@@ -468,3 +468,21 @@ def test_refused_refits_stop_early_and_change_no_decision(monkeypatch):
             assert a.cost_after >= b.cost_after - 1e-6
             assert a.cost_after > a.cost_before + 5.41 + gap
     assert n_early < len(evaluations) - n_early
+
+
+def test_threads_over_records_give_the_same_bits(monkeypatch):
+    """A fit outside the screening spreads its records' sensitivities over threads
+    (SYSID_FIT_PROCESSES of them); the records' shares are summed in record order, so one
+    thread and two give the same fit, bit for bit, reduction included."""
+    truth = {**TRUTH, "M_w": 0.0}
+    recs = records(2, gust=MC_GUST, rate_gain=MC_RATE_GAIN, truth=truth)
+    st = structure(truth)
+    fits = {}
+    for threads in ("1", "2"):
+        monkeypatch.setenv("SYSID_FIT_PROCESSES", threads)
+        fits[threads] = identify_filter_error(recs, st, start=st.theta0 * 1.1, reduce=True,
+                                              noise_starts=((1.0, 1.0),))
+    one, two = fits["1"], fits["2"]
+    assert one.reduction.removed == two.reduction.removed and one.cost == two.cost
+    np.testing.assert_array_equal(one.theta, two.theta)
+    np.testing.assert_array_equal(one.statistics.cramer_rao, two.statistics.cramer_rao)

@@ -144,6 +144,8 @@ SCREEN_PASSES = 2
 #: Processes that screen the noise starts side by side (``SYSID_FIT_PROCESSES`` overrides;
 #: the usable cores up to this, 1 in a Dask worker): each start is a fit of its own, the
 #: same bits in any process (docs/notes/2026-11-27-filter-error-parallel-screening.md).
+#: The fits after the screening (the lowest start, the reduction's refits) spread their
+#: records' sensitivities over as many threads, the same bits in any number.
 MAX_SCREEN_PROCESSES = 4
 #: The first relaxation pass of a fit from scratch solves at the start's innovation
 #: covariance, which the next pass replaces: it stops where less than this (L units, 100
@@ -312,6 +314,7 @@ class _Predictor:
         self.settle = None  #: (lower, upper) of beta: a solve stops at SOLVE_SETTLED
         self.settle_tol = SOLVE_SETTLED  #: ... of further predicted decrease of L
         self._dmat = self._matrix_derivatives()
+        self.threads = 1  #: threads over the records in :meth:`_sensitivities`
 
     def names(self, outputs) -> list[str]:
         st = self.structure
@@ -640,14 +643,17 @@ class _Predictor:
         dK[active] = num @ np.linalg.inv(S)
         return dK
 
-    def _sensitivities(self, beta):
+    def _sensitivities(self, beta, each=None):
         """Per record ``(r, B)``, ``B`` (N, p, n_alpha) the whitened innovation sensitivities
         ``Sigma^-1/2 de/dalpha`` to the structure and noise parameters (a record's own bias
         and initial-state columns are :meth:`_own_factor`'s): the sensitivities
         ``dx^`` follow the predictor's recursion with ``K`` held,
         ``dx^[k+1] = (Phi - K C) dx^[k] + dPhi x^ + dGamma v + Gamma dv + dK e
         - K (dC x^ + dD u + db)``, ``dx^[0] = dx0``, and ``de = -(C dx^ + dC x^ + dD u + db)``.
-        Raises ``LinAlgError``/``ValueError`` where the Riccati equation fails."""
+        With ``each``, ``(r, each(r, B))`` instead. The records run in :attr:`threads`
+        threads, in order (their products and the compiled recursion release the
+        interpreter). Raises ``LinAlgError``/``ValueError`` where the Riccati equation
+        fails."""
         run = self._run(np.asarray(beta, float))
         self.n_jac += 1
         theta, F, R, _, _ = self.split(beta)
@@ -669,7 +675,9 @@ class _Predictor:
                   for j, d in enumerate(self._dmat) if d is None]
         WC = self.whitener @ C
         shared = nt + ng
-        for r, rec in enumerate(self.records):
+
+        def one(r):
+            rec = self.records[r]
             Phi, Gam, K, dPhi, dGam, dK = per_dt[rec.dt]
             X, E, V, dV = run["X"][r], run["E"][r], run["V"][r], run["dV"][r]
             N = len(X)
@@ -692,7 +700,15 @@ class _Predictor:
             B = np.matmul(-WC, propagate(Phi - K @ C, W))  # de = -(C dx^ + ...), whitened
             if O is not None:  # the direct terms dC x^ + dD u
                 B[:, :, out_cols] -= np.matmul(self.whitener, O)
-            yield r, B
+            return r, (B if each is None else each(r, B))
+
+        records = range(len(self.records))
+        if self.threads > 1 and len(records) > 1:
+            with concurrent.futures.ThreadPoolExecutor(self.threads) as pool:
+                yield from pool.map(one, records)
+        else:
+            for r in records:
+                yield one(r)
 
     def jacobian(self, beta) -> np.ndarray:
         """``d(Sigma^-1/2 e)/dbeta`` (N p, n_beta), rows as :meth:`residuals`, from
@@ -725,20 +741,25 @@ class _Predictor:
         run = self._run(np.asarray(alpha, float))
         E = run["E"]
         na = self.n_alpha
-        G = np.zeros((na, na))
-        g = np.zeros(na)
-        rr = 0.0
-        for r, B in self._sensitivities(alpha):
+
+        def gram(r, B):  # a record's share, in its thread
             Ba = B.reshape(-1, na)
             v = (E[r] @ self.whitener.T).ravel()
-            G += Ba.T @ Ba
-            g += Ba.T @ v
-            rr += float(v @ v)
+            Gr = Ba.T @ Ba
             if self.n_rec:
                 Bc, keep, L = self._own_factor(run, r)
                 T = scipy.linalg.solve_triangular(L, (Bc.T @ Ba)[keep], lower=True,
                                                   check_finite=False)
-                G -= T.T @ T
+                Gr -= T.T @ T
+            return Gr, Ba.T @ v, float(v @ v)
+
+        G = np.zeros((na, na))
+        g = np.zeros(na)
+        rr = 0.0
+        for _, (Gr, gr, vv) in self._sensitivities(alpha, each=gram):  # in record order
+            G += Gr
+            g += gr
+            rr += vv
         return G, g, rr
 
 
@@ -1062,6 +1083,9 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
     mask = _noise_mask(process_noise_states(process_noise, structure), structure.states,
                        outs)
     pred = _Predictor(structure, recs, outs, mask, biases, initial_state)
+    # a screened start shares the cores with the others; any other fit has them to itself
+    pred.threads = 1 if screen else worker_processes("SYSID_FIT_PROCESSES",
+                                                     MAX_SCREEN_PROCESSES)
     n_samples = sum(len(r.time) for r in recs)
     p = len(outs)
     if n_samples * p < 10 * pred.n_beta:
