@@ -24,7 +24,8 @@ from pathlib import Path
 from sysid.core.errors import FMUError
 from sysid.core.paths import cache_dir
 
-__all__ = ["find_compiler", "native_library", "native_status", "NATIVE_CFLAGS"]
+__all__ = ["find_compiler", "run_compiler", "native_library", "native_status",
+           "NATIVE_CFLAGS"]
 
 #: Flags of a kernel build; ``-march=native`` is dropped where the compiler refuses it (the
 #: cache key holds the CPU, so a library built here is not loaded on another processor).
@@ -45,7 +46,7 @@ def find_compiler() -> list[str]:
         if shutil.which(name):
             return [name]
     raise FMUError("no C compiler found (tried $CC, cc, gcc, clang); install one "
-                   "(e.g. gcc or clang) to build the FMU from its sources")
+                   "(e.g. gcc or clang) to build the FMU and the kernels from their sources")
 
 
 def _cpu_identity() -> str:
@@ -73,26 +74,53 @@ def _compiler_identity(compiler: list[str]) -> str:
         return " ".join(compiler)
 
 
+def run_compiler(compiler: list[str], args: list[str], output: Path, *, what: str,
+                 log: Path | None = None, timeout: float = 300.0) -> Path:
+    """Run ``compiler`` with ``args`` to write ``output``.
+
+    Raises :class:`FMUError` naming ``what`` with the compiler's first error line (and
+    writes the full command and output to ``log`` when given); a compiler that cannot be
+    run or does not finish within ``timeout`` seconds is one clear line too.
+    """
+    cmd = [*compiler, *args]
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+    except OSError as exc:
+        raise FMUError(f"could not run the C compiler {compiler[0]!r}: {exc}") from None
+    except subprocess.TimeoutExpired:
+        raise FMUError(f"the C compiler {compiler[0]!r} did not finish within "
+                       f"{timeout:g} s") from None
+    if proc.returncode != 0 or not Path(output).is_file():
+        text = proc.stderr + proc.stdout
+        first = next((line for line in text.splitlines() if "error" in line.lower()),
+                     text.strip()[:300] or f"exit status {proc.returncode}, no output")
+        where = ""
+        if log is not None:
+            log.write_text(" ".join(cmd) + "\n\n" + text)
+            where = f" (full log: {log})"
+        raise FMUError(f"compiling {what} failed: {first.strip()} "
+                       f"(compiler: {' '.join(compiler)}){where}")
+    return Path(output)
+
+
 def _build(compiler: list[str], source: Path, library: Path) -> str | None:
     """Compile ``source`` into ``library`` (written under a temporary name, then renamed:
-    concurrent builds of the same kernel leave one whole file); the compiler's first error
-    line when both flag sets fail."""
+    concurrent builds of the same kernel leave one whole file); the error when both flag
+    sets fail."""
     fd, tmp = tempfile.mkstemp(dir=library.parent, prefix=library.stem, suffix=library.suffix)
     os.close(fd)
+    os.unlink(tmp)  # a failed build must not leave an empty file that looks built
     error = "no output"
     try:
         for flags in (NATIVE_CFLAGS, tuple(f for f in NATIVE_CFLAGS if f != "-march=native")):
             try:
-                proc = subprocess.run([*compiler, *flags, str(source), "-o", tmp, "-lm"],
-                                      capture_output=True, text=True, timeout=120)
-            except (OSError, subprocess.TimeoutExpired) as exc:
-                return f"could not run {compiler[0]!r}: {exc}"
-            if proc.returncode == 0:
-                os.replace(tmp, library)
-                return None
-            text = (proc.stderr + proc.stdout).strip()
-            error = next((ln for ln in text.splitlines() if "error" in ln.lower()),
-                         text[:200] or f"exit status {proc.returncode}")
+                run_compiler(compiler, [*flags, str(source), "-o", tmp, "-lm"], Path(tmp),
+                             what=f"the {source.name} kernel", timeout=120.0)
+            except FMUError as exc:
+                error = str(exc)
+                continue
+            os.replace(tmp, library)
+            return None
         return error
     finally:
         if os.path.exists(tmp):

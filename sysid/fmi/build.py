@@ -18,7 +18,6 @@ import csv
 import hashlib
 import os
 import shutil
-import subprocess
 import sys
 import tempfile
 import tomllib
@@ -29,7 +28,7 @@ from pathlib import Path
 
 import sysid
 from sysid.core.errors import FMUError
-from sysid.core.native import find_compiler
+from sysid.core.native import find_compiler, run_compiler
 from sysid.core.paths import cache_dir, fmu_sources_dir
 from sysid.core.units import DERIVATIVE_UNIT, DISPLAY_UNITS, UNITS
 from sysid.core.util import atomic_path
@@ -300,27 +299,10 @@ def compile_shared_library(c_files, include_dir: Path, library: Path, *, what: s
     Raises :class:`FMUError` with the compiler's first error line (and writes the full
     command and output to ``log`` when given); no compiler is one clear line too.
     """
-    compiler = find_compiler()
     flags = [f for f in CFLAGS if not (sys.platform == "win32" and f == "-fPIC")]
-    cmd = [*compiler, *flags, "-I", str(include_dir), *(str(f) for f in c_files),
-           "-o", str(library), "-lm"]
-    try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-    except OSError as exc:
-        raise FMUError(f"could not run the C compiler {compiler[0]!r}: {exc}") from None
-    except subprocess.TimeoutExpired:
-        raise FMUError(f"the C compiler {compiler[0]!r} did not finish within 300 s") from None
-    if proc.returncode != 0 or not library.is_file():
-        text = proc.stderr + proc.stdout
-        first = next((line for line in text.splitlines() if "error" in line.lower()),
-                     text.strip()[:300] or f"exit status {proc.returncode}, no output")
-        where = ""
-        if log is not None:
-            log.write_text(" ".join(cmd) + "\n\n" + text)
-            where = f" (full log: {log})"
-        raise FMUError(f"compiling {what} failed: {first.strip()} "
-                       f"(compiler: {' '.join(compiler)}){where}")
-    return library
+    return run_compiler(find_compiler(), [*flags, "-I", str(include_dir),
+                                          *(str(f) for f in c_files), "-o", str(library),
+                                          "-lm"], library, what=what, log=log)
 
 
 def fmu_cache_path(model: ModelSources, common: Path, fmi_version: int = 2) -> Path:
