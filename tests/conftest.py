@@ -11,6 +11,8 @@ one worker whole, so its module fixtures are built once; the modules that read o
 session results above go to the same worker, so each is made once per run.
 """
 
+import os
+
 import pytest
 from sysid.core.util import blas_threads
 
@@ -18,6 +20,13 @@ from sysid.core.util import blas_threads
 # is many mid-sized matrix products, which multi-threaded OpenBLAS slows by up to 10x on the
 # 2-core CI machine (measured).
 _BLAS_LIMIT = blas_threads()
+
+# Under two or more xdist workers the cores are already full: a fit's own parallelism (the
+# filter-error screening processes, its threads over records, the report's figure
+# processes) would only oversubscribe them. Tests that exercise it set these themselves.
+if int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) > 1:
+    for _variable in ("SYSID_FIT_PROCESSES", "SYSID_REPORT_PROCESSES"):
+        os.environ.setdefault(_variable, "1")
 
 
 @pytest.hookimpl(tryfirst=True)
