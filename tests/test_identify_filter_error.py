@@ -301,6 +301,19 @@ def test_analytic_sensitivities_match_central_differences(tied, biases, initial_
     Jfull = pred.jacobian(full)
     Ja, Jn = Jfull[:, :pred.n_alpha], Jfull[:, pred.n_alpha:]
     np.testing.assert_allclose(Jn.T @ r, 0.0, atol=1e-9 * np.abs(Jn).sum(axis=0).max())
+    # the bounds' information and marginal sensitivities, accumulated record by record
+    # without the tall Jacobian: against its Gram matrix, and its structure columns less
+    # their projection on every other column (by SVD)
+    nt = pred.n_theta
+    M = pred.information(full)
+    np.testing.assert_allclose(M, Jfull.T @ Jfull, rtol=1e-10, atol=1e-12 * np.abs(M).max())
+    Mt, A = fe._marginal(M, nt)
+    Uo, so, _ = np.linalg.svd(Jfull[:, nt:], full_matrices=False)
+    Uo = Uo[:, so > 1e-9 * so[0]]
+    Gt = Jfull[:, :nt] - Uo @ (Uo.T @ Jfull[:, :nt])
+    np.testing.assert_allclose(Mt, Gt.T @ Gt, rtol=1e-8, atol=1e-10 * np.abs(Mt).max())
+    rows = np.concatenate([g.reshape(-1, nt) for g in pred.marginal_rows(full, A)])
+    np.testing.assert_allclose(rows, Gt, rtol=0, atol=1e-8 * np.abs(Gt).max())
     U, sv, _ = np.linalg.svd(Jn, full_matrices=False)
     U = U[:, sv > 1e-9 * sv[0]]
     Jp = Ja - U @ (U.T @ Ja)

@@ -64,8 +64,9 @@ the first version's differences.
 
 Accuracy: Cramer-Rao bounds from the innovations' information matrix
 ``M = sum_k S[k]^T Sigma^-1 S[k]`` (``S = de/d(theta, U, D, R, b, x0)``, the analytic
-sensitivities at the optimum); the bounds of the structure parameters have ``F``, the biases and initial
-states marginalised (Schur complement). They are honest when the innovations are white,
+sensitivities at the optimum), accumulated record by record as the normal equations are;
+the bounds of the structure parameters have ``F``, the biases and initial states
+marginalised (Schur complement). They are honest when the innovations are white,
 which the result reports as the normalised autocorrelation of each whitened innovation at
 lags 1-10 (band ``2/sqrt(N)``).
 
@@ -104,7 +105,7 @@ from sysid.core.util import (POOL_FAILURES, forkserver_context, one_blas_thread,
                              worker_processes)
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters, ParameterStatistics,
                                       add_corrected_bounds, coloured_residual_covariance,
-                                      parameter_rows, parameter_statistics)
+                                      information_statistics, parameter_rows)
 from sysid.identify.least_squares import (STALL_WINDOW, Settled, SolveStopped,
                                           predicted_decrease, stall_watch)
 from sysid.identify.reduction import (GUIDELINES, FitOutcome, ReductionResult,
@@ -244,8 +245,9 @@ class FilterErrorResult(FitResultParameters):
     noise_and_nuisance: np.ndarray | None = None
     #: CPU (s) of the noise starts screened in other processes (in ``cpu_time`` too)
     cpu_elsewhere: float = 0.0
-    #: What the corrected bounds need when a reduction refit left them for later
-    #: (:func:`_add_coloured`): whitened sensitivities and innovations per record, and dt.
+    #: What the corrected bounds need when a fit left them for later (:func:`_add_coloured`):
+    #: a callable giving the marginal sensitivities per record, the whitened innovations per
+    #: record, and dt.
     coloured_pending: tuple | None = field(default=None, repr=False)
 
     @property
@@ -712,8 +714,8 @@ class _Predictor:
 
     def jacobian(self, beta) -> np.ndarray:
         """``d(Sigma^-1/2 e)/dbeta`` (N p, n_beta), rows as :meth:`residuals`, from
-        :meth:`_sensitivities`. Zeros where the Riccati equation fails (the solver never
-        asks there)."""
+        :meth:`_sensitivities` (the tall form of :meth:`information`'s blocks, which the
+        fit uses). Zeros where the Riccati equation fails."""
         size = sum(len(rec.time) for rec in self.records) * self.p
         J = np.zeros((size, self.n_beta))
         try:
@@ -730,6 +732,52 @@ class _Predictor:
                 J[rows:rows + len(block), c0:c0 + nr] = self._own_factor(run, r)[0]
             rows += len(block)
         return J
+
+    def information(self, beta) -> np.ndarray:
+        """``M = J^T J`` (n_beta, n_beta) of :meth:`jacobian` at a full ``beta``, from each
+        record's blocks (its sensitivities to ``alpha`` and its own bias and initial-state
+        columns; the other records' are 0 in its rows) without forming ``J``. Zeros where
+        the Riccati equation fails."""
+        na, nr = self.n_alpha, self.n_rec
+        M = np.zeros((self.n_beta, self.n_beta))
+        beta = np.asarray(beta, float)
+        try:
+            run = self._run(beta)
+
+            def share(r, B):  # in the record's thread
+                Ba = B.reshape(-1, na)
+                Bc = self._own_factor(run, r)[0] if nr else np.zeros((len(Ba), 0))
+                return Ba.T @ Ba, Bc.T @ Ba, Bc.T @ Bc
+
+            shares = list(self._sensitivities(beta, each=share))
+        except (np.linalg.LinAlgError, ValueError):
+            return M
+        for r, (Gaa, Gca, Gcc) in shares:  # in record order
+            M[:na, :na] += Gaa
+            c = slice(na + r * nr, na + (r + 1) * nr)
+            M[c, :na] = Gca
+            M[:na, c] = Gca.T
+            M[c, c] = Gcc
+        return M
+
+    def marginal_rows(self, beta, A: np.ndarray) -> list[np.ndarray]:
+        """Per record the marginal sensitivities ``G_t - G_n A`` (N, p, n_theta) of the
+        structure parameters at a full ``beta``, ``A`` (n_beta - n_theta, n_theta) from
+        :func:`_marginal`: :meth:`jacobian`'s rows less their fit by the noise and nuisance
+        columns, record by record."""
+        beta = np.asarray(beta, float)
+        run = self._run(beta)
+        nt, na, nr = self.n_theta, self.n_alpha, self.n_rec
+        An, Ac = A[:na - nt], A[na - nt:].reshape(len(self.records), nr, nt)
+
+        def rows(r, B):
+            Ba = B.reshape(-1, na)
+            G = Ba[:, :nt] - Ba[:, nt:] @ An
+            if nr:
+                G -= self._own_factor(run, r)[0] @ Ac[r]
+            return G.reshape(len(B), self.p, nt)
+
+        return [G for _, G in self._sensitivities(beta, each=rows)]
 
     def normal_equations(self, alpha) -> tuple[np.ndarray, np.ndarray, float]:
         """``(J^T J, J^T r, r^T r)`` of the projected problem (nuisance solved for, module
@@ -908,6 +956,7 @@ def identify_filter_error(records, structure: LinearStructure, *,
     full = _best_start(records, structure, start=start, noise_starts=noise_starts,
                        progress=progress, **kw)
     if not reduce:
+        _add_coloured(full)
         full.cpu_time = time.process_time() - cpu0 + full.cpu_elsewhere
         full.model.attrs["cpu_time_s"] = full.cpu_time
         return full
@@ -944,12 +993,14 @@ def identify_filter_error(records, structure: LinearStructure, *,
 def _best_start(records, structure, *, start, noise_starts, progress, **kw):
     """The first fit: each noise start relaxed for :data:`SCREEN_PASSES` passes, the one
     with the lowest ``L`` then converged (its model records every start's screened ``L`` in
-    ``noise_starts``)."""
+    ``noise_starts``; its corrected bounds are left to :func:`_add_coloured`, which a
+    reduction needs only for the model it ends with)."""
     if not len(noise_starts):
         raise InputDataError("identify_filter_error: noise_starts is empty; give at least "
                              "one (q, r) pair, e.g. (1, 1)")
     if len(noise_starts) == 1:
-        best = _fit(records, structure, start=start, noise_start=tuple(noise_starts[0]), **kw)
+        best = _fit(records, structure, start=start, noise_start=tuple(noise_starts[0]),
+                    corrected=False, **kw)
         best.model.attrs["noise_starts"] = json.dumps([[*map(float, noise_starts[0]),
                                                         float(best.cost)]])
         return best
@@ -971,7 +1022,8 @@ def _best_start(records, structure, *, start, noise_starts, progress, **kw):
     if not done:
         raise errors[0]
     chosen = min(done, key=lambda f: f.cost)
-    best = _fit(records, structure, start=chosen.theta, warm=chosen.noise_and_nuisance, **kw)
+    best = _fit(records, structure, start=chosen.theta, warm=chosen.noise_and_nuisance,
+                corrected=False, **kw)
     best.cpu_elsewhere = elsewhere
     best.model.attrs["noise_starts"] = json.dumps(
         [[float(q), float(r), None if f is None else float(f.cost)]
@@ -1049,9 +1101,9 @@ def _add_coloured(result: FilterErrorResult) -> None:
     its model; nothing when they are there."""
     if result.coloured_pending is None:
         return
-    blocks, residuals, dt = result.coloured_pending
+    rows, residuals, dt = result.coloured_pending
     result.coloured = coloured_residual_covariance(
-        sensitivities=blocks, residuals=residuals,
+        sensitivities=rows(), residuals=residuals,
         information_inverse=result.statistics.covariance)
     add_corrected_bounds(result.model, result.structure.free_names, result.theta,
                          result.coloured, dt)
@@ -1182,17 +1234,29 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
                          converged=not refused)
     pred.set_whitener(np.linalg.inv(np.linalg.cholesky(Sigma)))
     names = pred.names(outs)
-    J = (_central_jacobian(pred.residuals, beta, lower, upper) if FINITE_DIFFERENCES
-         else pred.jacobian(beta))
-    joint = parameter_statistics(J, beta, names)
     nt = pred.n_theta
-    Gt = _project_out(J[:, :nt], J[:, nt:])
-    stats = parameter_statistics(Gt, beta[:nt], list(structure.free_names))
+    if FINITE_DIFFERENCES:
+        J = _central_jacobian(pred.residuals, beta, lower, upper)
+        M = J.T @ J
+    else:
+        M = pred.information(beta)
+    joint = information_statistics(M, beta, names)
+    Mt, coef = _marginal(M, nt)
+    stats = information_statistics(Mt, beta[:nt], list(structure.free_names))
     pending = None
     if nt:  # the innovations' colour (structure error the process noise did not absorb)
-        ends = np.cumsum([0] + [len(e) * p for e in E])
-        pending = ([Gt[a:b].reshape(-1, p, nt) for a, b in zip(ends[:-1], ends[1:])],
-                   [e @ pred.whitener.T for e in E], recs[0].dt)
+        if FINITE_DIFFERENCES:
+            ends = np.cumsum([0] + [len(e) * p for e in E])
+            Gt = J[:, :nt] - J[:, nt:] @ coef
+
+            def rows():
+                return [Gt[a:b].reshape(-1, p, nt) for a, b in zip(ends[:-1], ends[1:])]
+        else:
+            pred.set_whitener(pred.whitener)  # its caches go: rows() runs again if asked
+
+            def rows():
+                return pred.marginal_rows(beta, coef)
+        pending = (rows, [e @ pred.whitener.T for e in E], recs[0].dt)
     theta, F, R, _, _ = pred.split(beta)
     _, C, _, disc = pred.discrete(theta)
     K, P = pred.kalman(disc[recs[0].dt][0], C, F, R)
@@ -1261,18 +1325,23 @@ def _fit(records, structure, *, start, outputs, process_noise, biases, initial_s
     return result
 
 
-def _project_out(Gt: np.ndarray, Gn: np.ndarray) -> np.ndarray:
-    """``Gt`` (M, a) less its least-squares fit by the columns of ``Gn`` (M, b): the
-    sensitivities with the nuisance marginalised, from the Gram matrices (a column of ``Gn``
-    dependent on earlier ones is left out, :func:`_independent_gram`), two products of the
-    tall matrices instead of a QR factorisation of ``Gn``."""
-    if not Gn.shape[1]:
-        return Gt
-    keep, L = _independent_gram(Gn.T @ Gn)
+def _marginal(M: np.ndarray, nt: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(M_t, A)``: the information ``M_t = M_tt - M_tn M_nn^-1 M_nt`` (nt, nt) of the first
+    ``nt`` parameters with the others marginalised (the Schur complement of the joint
+    information ``M``, n x n), and ``A = M_nn^-1 M_nt`` (n - nt, nt), the least-squares
+    fit of their sensitivities by the others' (``G_t - G_n A`` are the marginal
+    sensitivities, ``M_t`` their Gram matrix). A column of ``G_n`` dependent on earlier ones
+    is left out (:func:`_independent_gram`; its row of ``A`` is 0)."""
+    Mtt, Mnt = M[:nt, :nt], M[nt:, :nt]
+    A = np.zeros(Mnt.shape)
+    if not len(Mnt):
+        return Mtt.copy(), A
+    keep, L = _independent_gram(M[nt:, nt:])
     if not keep.any():
-        return Gt
-    Gk = Gn[:, keep]
-    return Gt - Gk @ _chol_solve(L, Gk.T @ Gt)
+        return Mtt.copy(), A
+    A[keep] = _chol_solve(L, Mnt[keep])
+    T = scipy.linalg.solve_triangular(L, Mnt[keep], lower=True, check_finite=False)
+    return Mtt - T.T @ T, A
 
 
 def _compress(G: np.ndarray, g: np.ndarray, rr: float) -> tuple[np.ndarray, np.ndarray]:

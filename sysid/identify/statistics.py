@@ -50,8 +50,8 @@ import xarray as xr
 from sysid.core.guidelines import (CR_MAX_PERCENT, INSENSITIVITY_MAX_PERCENT,
                                    UNDETERMINED_PERCENT)
 
-__all__ = ["ParameterStatistics", "parameter_statistics", "correlated_pairs",
-           "undetermined_parameters", "format_undetermined",
+__all__ = ["ParameterStatistics", "parameter_statistics", "information_statistics",
+           "correlated_pairs", "undetermined_parameters", "format_undetermined",
            "residual_autocorrelation", "correlation_lag", "coloured_residual_covariance",
            "ColouredBounds", "guideline_mark", "robust_scale", "OUTLYING_SCALES"]
 
@@ -299,12 +299,25 @@ def parameter_statistics(jacobian, values, names: Sequence[str], *, scale: float
     ParameterStatistics
     """
     G = np.asarray(jacobian, dtype=float)
-    values = np.asarray(values, dtype=float)
     n = G.shape[1] if G.ndim == 2 else 0
-    if values.shape != (n,) or len(names) != n:
-        raise ValueError(f"parameter_statistics: jacobian has {n} columns but {values.shape} "
-                         f"values and {len(names)} names")
-    H = scale * (G.T @ G)
+    if np.shape(values) != (n,) or len(names) != n:
+        raise ValueError(f"parameter_statistics: jacobian has {n} columns but "
+                         f"{np.shape(values)} values and {len(names)} names")
+    return information_statistics(G.T @ G, values, names, scale=scale, rcond=rcond)
+
+
+def information_statistics(information, values, names: Sequence[str], *, scale: float = 1.0,
+                           rcond: float = RCOND) -> ParameterStatistics:
+    """:func:`parameter_statistics` from the information matrix ``M = G^T G`` (n_parameter,
+    n_parameter) itself: for fits that accumulate it record by record without forming
+    the tall Jacobian ``G``."""
+    M = np.asarray(information, dtype=float)
+    values = np.asarray(values, dtype=float)
+    n = M.shape[0] if M.ndim == 2 else 0
+    if M.shape != (n, n) or values.shape != (n,) or len(names) != n:
+        raise ValueError(f"information_statistics: information has shape {M.shape} but "
+                         f"{values.shape} values and {len(names)} names")
+    H = scale * M
     diag = np.diag(H).copy()
     # A zero (or non-finite) column: the cost does not depend on the parameter at all.
     col_ok = np.isfinite(diag) & (diag > 0)
