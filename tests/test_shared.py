@@ -160,15 +160,19 @@ def test_blas_threads_limits_every_blas_even_before_scipy_is_imported():
     ("sysid.identify.time_domain", "identify_time_domain", "fit_inputs"),
     ("sysid.identify.frequency_domain", "identify_frequency_domain", "select_fit_data"),
     ("sysid.identify.filter_error", "identify_filter_error", "_best_start")])
-def test_identification_entry_points_run_with_one_blas_thread(monkeypatch, module, entry,
-                                                              inner):
+def test_identification_entry_points_set_their_numerics(monkeypatch, module, entry, inner):
     """Called from a user's script with BLAS at two threads, a fit runs its numerics with one
     and gives the two back (output error on the hover study: 10.1 s of wall at two threads,
-    4.8 s at one)."""
+    4.8 s at one), and it steadies the heap first (steady_heap)."""
     import importlib
     import types
 
     from threadpoolctl import threadpool_info, threadpool_limits
+
+    import sysid.core.util as util
+
+    steadied = []
+    monkeypatch.setattr(util, "steady_heap", lambda: steadied.append(True))
 
     def blas():
         return {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
@@ -185,7 +189,40 @@ def test_identification_entry_points_run_with_one_blas_thread(monkeypatch, modul
         with pytest.raises(RuntimeError, match="probe"):
             getattr(mod, entry)(None, types.SimpleNamespace(attrs={}))
         assert blas() == {2}
-    assert seen == [{1}]
+    assert seen == [{1}] and steadied == [True]
+
+
+def test_steady_heap_sets_glibc_thresholds_unless_the_environment_does(tmp_path):
+    """steady_heap fixes glibc's thresholds once per process: six 4 MB arrays alive together
+    and then freed, as a fit's temporaries are at every evaluation, are reused from the heap
+    on the next round without a page fault, where glibc's adaptive thresholds (trim at twice
+    the largest block freed) hand the 24 MB back and fault them in again every round. A
+    process whose environment sets a threshold, or SYSID_STEADY_HEAP=0, keeps its own."""
+    import platform
+
+    if platform.libc_ver()[0] != "glibc":
+        pytest.skip("glibc's malloc only")
+    code = ("import resource, numpy as np\n"
+            "from sysid.core.native import steady_heap\n"
+            "applied = steady_heap()\n"
+            "def faults():\n"
+            "    f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt\n"
+            "    for _ in range(5):\n"
+            "        arrays = [np.ones(500_000) for _ in range(6)]; del arrays\n"
+            "    return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0\n"
+            "faults()\n"
+            "print(applied, steady_heap() is applied, faults())\n")
+    base = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_")}
+    base.pop("SYSID_STEADY_HEAP", None)
+    runs = {}
+    for name, extra in (("default", {}), ("off", {"SYSID_STEADY_HEAP": "0"}),
+                        ("owner", {"MALLOC_TRIM_THRESHOLD_": "65536"})):
+        out = subprocess.run([sys.executable, "-c", code], env={**base, **extra},
+                             capture_output=True, text=True, check=True).stdout.split()
+        runs[name] = (out[0], out[1], int(out[2]))
+    assert runs["default"][:2] == ("True", "True") and runs["default"][2] < 100, runs
+    for name in ("off", "owner"):
+        assert runs[name][0] == "False" and runs[name][2] > 5 * 6 * 500, runs
 
 
 def test_native_kernels_fall_back_and_rebuild(monkeypatch, tmp_path):

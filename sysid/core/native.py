@@ -25,13 +25,24 @@ from sysid.core.errors import FMUError
 from sysid.core.paths import cache_dir
 
 __all__ = ["find_compiler", "run_compiler", "native_library", "native_status",
-           "NATIVE_CFLAGS"]
+           "NATIVE_CFLAGS", "steady_heap", "HEAP_MMAP_THRESHOLD", "HEAP_TRIM_THRESHOLD"]
 
 #: Flags of a kernel build; ``-march=native`` is dropped where the compiler refuses it (the
 #: cache key holds the CPU, so a library built here is not loaded on another processor).
 NATIVE_CFLAGS = ("-O3", "-march=native", "-fPIC", "-shared")
 
 _status: dict[str, str] = {}
+
+#: glibc's malloc under :func:`steady_heap`: blocks up to this many bytes come from the heap
+#: instead of a fresh mapping, and up to HEAP_TRIM_THRESHOLD bytes stay free at its top
+#: instead of going back to the system. They are where glibc's own adaptive thresholds end
+#: (its largest mmap threshold, 32 MiB on 64 bits, and twice that for the trim); left
+#: adaptive they follow the sizes freed so far, and a fit whose arrays fall just above them
+#: page-faults on every temporary: 8000 faults and 10 ms of 30 per filter-error evaluation
+#: (docs/notes/2026-11-28-filter-error-steady-heap.md).
+HEAP_MMAP_THRESHOLD = 32 << 20
+HEAP_TRIM_THRESHOLD = 64 << 20
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # mallopt's parameters (glibc malloc.h)
 
 
 def find_compiler() -> list[str]:
@@ -170,3 +181,26 @@ def native_library(name: str, source: str) -> ctypes.CDLL | None:
 def native_status() -> dict[str, str]:
     """Per kernel asked for so far: ``native (<file>)``, or why its numpy path runs."""
     return dict(_status)
+
+
+@functools.lru_cache(maxsize=None)
+def steady_heap() -> bool:
+    """Fix glibc's malloc thresholds at :data:`HEAP_MMAP_THRESHOLD` and
+    :data:`HEAP_TRIM_THRESHOLD`, once per process, so that the fits' mid-sized temporaries
+    (megabytes, allocated and freed at every evaluation) reuse the heap instead of being
+    mapped, faulted in and unmapped each time. Nothing elsewhere than on glibc, where the
+    process's environment sets either threshold itself (``MALLOC_MMAP_THRESHOLD_``,
+    ``MALLOC_TRIM_THRESHOLD_``: its owner's choice), or with ``SYSID_STEADY_HEAP=0``.
+    Returns whether the thresholds were set."""
+    if (os.environ.get("SYSID_STEADY_HEAP", "1") == "0"
+            or platform.libc_ver()[0] != "glibc"
+            or any(f"MALLOC_{k}_THRESHOLD_" in os.environ for k in ("MMAP", "TRIM"))):
+        return False
+    try:
+        libc = ctypes.CDLL(None)
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):  # pragma: no cover - glibc has it
+        return False
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    return bool(mallopt(_M_MMAP_THRESHOLD, HEAP_MMAP_THRESHOLD)
+                and mallopt(_M_TRIM_THRESHOLD, HEAP_TRIM_THRESHOLD))

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from sysid.core.errors import IdentificationError, InputDataError
+from sysid.core.native import steady_heap
 
 
 @contextlib.contextmanager
@@ -251,14 +252,15 @@ def blas_threads(default: int = 1):
     return threadpool_limits(limits=max(limit, 1), user_api="blas")
 
 
-def one_blas_thread(function):
-    """``function`` run under :func:`blas_threads`: the identification entry points limit
-    BLAS themselves, so that a call from a user's own script is as fast as the study's
-    (output error on the hover study: 10.1 s of wall and 20 s of CPU with OpenBLAS's two
-    threads against 4.8 s with one)."""
+def fit_settings(function):
+    """``function`` run under :func:`blas_threads` and :func:`~sysid.core.native.steady_heap`:
+    the identification entry points set them themselves, so that a call from a user's own
+    script is as fast as the study's (output error on the hover study: 10.1 s of wall and
+    20 s of CPU with OpenBLAS's two threads against 4.8 s with one)."""
 
     @functools.wraps(function)
     def limited(*args, **kwargs):
+        steady_heap()
         with blas_threads():
             return function(*args, **kwargs)
 

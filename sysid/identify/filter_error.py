@@ -101,7 +101,7 @@ import scipy.optimize
 import xarray as xr
 
 from sysid.core.errors import IdentificationError, InputDataError
-from sysid.core.util import (POOL_FAILURES, forkserver_context, one_blas_thread,
+from sysid.core.util import (POOL_FAILURES, fit_settings, forkserver_context,
                              worker_processes)
 from sysid.identify.statistics import (ColouredBounds, FitResultParameters, ParameterStatistics,
                                       add_corrected_bounds, coloured_residual_covariance,
@@ -445,19 +445,20 @@ class _Predictor:
             X = propagate(Phi - K @ C, V @ Gam.T + ZD @ K.T)
             E = ZD - X @ C.T
             # ... plus the bias and initial state, which enter linearly
-            Pw, Sw, De = (a[:N] for a in own[rec.dt])
+            Pw, Sw, _ = (a[:N] for a in own[rec.dt])
             if b is None:
                 c = self._nuisance(run, r, E)
             else:
                 c = np.concatenate([b[r] if self.biases else [], x0[r] if self.initial_state
                                     else []])
-            if self.n_rec:  # x^ += Acl^k x0 - sum_(i<k) Acl^i K b
+            if self.n_rec:  # x^ += Acl^k x0 - sum_(i<k) Acl^i K b, e = z - D u - C x^ - b
                 nb = self.p if self.biases else 0
                 if self.biases:
                     X = X - (Sw.reshape(-1, self.n) @ (K @ c[:nb])).reshape(N, self.n)
+                    ZD = ZD - c[:nb]
                 if self.initial_state:
                     X = X + (Pw.reshape(-1, self.n) @ c[nb:]).reshape(N, self.n)
-                E = E + De @ c
+                E = ZD - X @ C.T
             run["nuisance"][r] = c
             run["V"].append(V)
             run["dV"].append(np.stack([d for _, d in VV], axis=1))
@@ -470,19 +471,19 @@ class _Predictor:
         """``(P, S, De)`` of a record's bias and initial state ``c`` over ``N`` samples:
         ``P[k] = Acl^k`` and ``S[k] = sum_(i<k) Acl^i`` (N, n, n), so that ``dx^[k]/dx0 =
         P[k]`` and ``dx^[k]/db = -S[k] K`` (the initial state decays, a bias enters as
-        ``-K b``), and ``de/dc`` (N, p, n_rec) ``= -C dx^/dc`` less ``b``. From the powers
-        (:func:`~sysid.models.matrix_powers`); the same for every record of one sample
-        interval."""
-        n, p = self.n, self.p
+        ``-K b``), and the whitened ``Sigma^-1/2 de/dc`` (N, p, n_rec), ``de/dc = -C dx^/dc``
+        less ``b``. From the powers (:func:`~sysid.models.matrix_powers`), those of ``C``
+        whitened first; the same for every record of one sample interval."""
+        n, p, W = self.n, self.p, self.whitener
         P = matrix_powers(Acl, N)
         S = np.zeros((N, n, n))
         np.cumsum(P[:-1], axis=0, out=S[1:])
         De = np.empty((N, p, self.n_rec))
-        CP = matrix_powers(Acl, N, start=C)  # C Acl^k
+        CP = matrix_powers(Acl, N, start=W @ C)  # Sigma^-1/2 C Acl^k
         if self.biases:
             CS = np.zeros((N, p, n))
             np.cumsum(CP[:-1], axis=0, out=CS[1:])
-            De[:, :, :p] = (CS.reshape(N * p, n) @ K).reshape(N, p, p) - np.eye(p)
+            De[:, :, :p] = (CS.reshape(N * p, n) @ K).reshape(N, p, p) - W
         if self.initial_state:
             De[:, :, p if self.biases else 0:] = -CP
         return P, S, De
@@ -496,10 +497,7 @@ class _Predictor:
         cache = run.setdefault("own_factor", {})
         if r not in cache:
             rec = self.records[r]
-            white = run.setdefault("own_white", {})
-            if rec.dt not in white:
-                white[rec.dt] = np.matmul(self.whitener, run["own"][rec.dt][2])
-            Bc = white[rec.dt][:len(rec.time)].reshape(-1, self.n_rec)
+            Bc = run["own"][rec.dt][2][:len(rec.time)].reshape(-1, self.n_rec)
             cache[r] = (Bc, *_independent_gram(Bc.T @ Bc))
         return cache[r]
 
@@ -862,7 +860,7 @@ def _whiteness(E: list[np.ndarray], whitener: np.ndarray, lags: int) -> np.ndarr
     return num / den[:, None]
 
 
-@one_blas_thread
+@fit_settings
 def identify_filter_error(records, structure: LinearStructure, *,
                           start: xr.Dataset | np.ndarray | None = None,
                           outputs: Sequence[str] | None = None, process_noise="full",
@@ -1031,7 +1029,7 @@ def _best_start(records, structure, *, start, noise_starts, progress, **kw):
     return best
 
 
-@one_blas_thread
+@fit_settings
 def _screen_one(records, structure, start, noise_start, screen):
     """One noise start's screening passes, or the IdentificationError that ended them."""
     try:

@@ -102,7 +102,7 @@ from sysid.identify.statistics import (ColouredBounds, FitResultParameters,
                                       perturbed_start, robust_scale, OUTLYING_SCALES)
 from sysid.models import LinearStructure
 from sysid.spectral.composite import trusted as composite_trusted
-from sysid.core.util import Deadline, Progress, one_blas_thread
+from sysid.core.util import Deadline, Progress, fit_settings
 
 __all__ = [
     "DEFAULT_PAIRS",
@@ -1068,7 +1068,7 @@ class FrequencyFitResult(FitResultParameters):
         return "\n".join(lines)
 
 
-@one_blas_thread
+@fit_settings
 def identify_frequency_domain(fr: xr.Dataset, structure: LinearStructure, *, pairs=None,
                               start: xr.Dataset | np.ndarray | None = None,
                               coherence_min: float | None = None, n_points: int = N_POINTS,

@@ -113,7 +113,7 @@ import xarray as xr
 
 from sysid.core.errors import IdentificationError, InputDataError
 from sysid.core.guidelines import FIT_TIME_LIMIT_S
-from sysid.core.util import Deadline, Progress, one_blas_thread
+from sysid.core.util import Deadline, Progress, fit_settings
 from sysid.data.campaign import record_trim
 from sysid.data.importers import validate_time_history
 from sysid.identify.least_squares import (Settled, SolveStopped, compress, predicted_decrease,
@@ -1261,7 +1261,7 @@ class TimeFitResult(FitResultParameters):
 # --------------------------------------------------------------------------------------------
 
 
-@one_blas_thread
+@fit_settings
 def identify_time_domain(records, structure: LinearStructure, *,
                          start: xr.Dataset | np.ndarray | None = None,
                          outputs: Sequence[str] | None = None, biases: bool = True,
