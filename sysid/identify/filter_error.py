@@ -712,8 +712,9 @@ class _Predictor:
 
     def jacobian(self, beta) -> np.ndarray:
         """``d(Sigma^-1/2 e)/dbeta`` (N p, n_beta), rows as :meth:`residuals`, from
-        :meth:`_sensitivities` (the tall form of :meth:`information`'s blocks, which the
-        fit uses). Zeros where the Riccati equation fails."""
+        :meth:`_sensitivities`: the tall form of :meth:`information`'s blocks (the fit
+        itself uses the blocks; the tests check both). Zeros where the Riccati equation
+        fails."""
         size = sum(len(rec.time) for rec in self.records) * self.p
         J = np.zeros((size, self.n_beta))
         try:
