@@ -15,7 +15,7 @@ import sys
 
 from sysid import __version__
 from sysid.core.errors import SysidError
-from sysid.core.util import blas_threads
+from sysid.core.util import numeric_settings
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -40,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        with blas_threads():
+        with numeric_settings():
             return int(args.func(args) or 0)
     except SysidError as exc:
         # A user-caused problem: one clear line, no traceback from inside a library.

@@ -252,16 +252,25 @@ def blas_threads(default: int = 1):
     return threadpool_limits(limits=max(limit, 1), user_api="blas")
 
 
+@contextlib.contextmanager
+def numeric_settings():
+    """The process settings sysid's numerics run under: glibc's heap steadied
+    (:func:`~sysid.core.native.steady_heap`, once per process) and BLAS limited
+    (:func:`blas_threads`, given back on leaving)."""
+    steady_heap()
+    with blas_threads():
+        yield
+
+
 def fit_settings(function):
-    """``function`` run under :func:`blas_threads` and :func:`~sysid.core.native.steady_heap`:
-    the identification entry points set them themselves, so that a call from a user's own
-    script is as fast as the study's (output error on the hover study: 10.1 s of wall and
-    20 s of CPU with OpenBLAS's two threads against 4.8 s with one)."""
+    """``function`` run under :func:`numeric_settings`: the identification entry points set
+    them themselves, so that a call from a user's own script is as fast as the study's
+    (output error on the hover study: 10.1 s of wall and 20 s of CPU with OpenBLAS's two
+    threads against 4.8 s with one)."""
 
     @functools.wraps(function)
     def limited(*args, **kwargs):
-        steady_heap()
-        with blas_threads():
+        with numeric_settings():
             return function(*args, **kwargs)
 
     return limited

@@ -42,7 +42,7 @@ import xarray as xr
 import sysid
 from sysid.core.errors import InputDataError
 from sysid.core.units import ACCELERATIONS, CONTROLS, STATES_6DOF
-from sysid.core.util import atomic_path, blas_threads
+from sysid.core.util import atomic_path, numeric_settings
 from sysid.data import importers
 from sysid.identify.frequency_domain import DEFAULT_PAIRS, parse_pairs
 from sysid.models import structure_path
@@ -325,7 +325,7 @@ def run_flight_data(files: Sequence[str | Path], out_dir: str | Path, *,
     records = read_flight_data(files, mapping=mapping, units=units, trim=trim, time=time,
                                resample=resample)
     source = ", ".join(str(f) for f in files)
-    with blas_threads():
+    with numeric_settings():
         study = _FlightData(out_dir, records, str(structure), quiet=quiet, log=log,
                             source=source, transient_states=transient_states,
                             time_domain_method=time_domain_method)

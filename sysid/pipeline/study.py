@@ -54,7 +54,7 @@ import sysid
 from sysid.core.errors import InputDataError, SysidError
 from sysid.core.guidelines import COHERENCE_MIN
 from sysid.core.units import CONTROLS, STATES_6DOF
-from sysid.core.util import Progress, blas_threads, start_forkserver
+from sysid.core.util import Progress, numeric_settings, start_forkserver
 from sysid.data.campaign import CampaignData
 from sysid.data.netcdf import group_attrs, read_campaign, update_campaign_groups, write_campaign
 from sysid.flight_test.campaign import (Campaign, default_campaign, run_campaign,
@@ -244,7 +244,7 @@ def run_study(out_dir: str | Path, settings: StudySettings | None = None, *,
     unknown = [p for p in parts if p not in PARTS]
     if unknown:
         raise SysidError(f"run_study: unknown part(s) {unknown}; expected some of {PARTS}")
-    with blas_threads():
+    with numeric_settings():
         study = _Study(out_dir, settings or StudySettings(), quiet=quiet, log=log)
         report = None
         for part in PARTS:
