@@ -7,6 +7,7 @@ compiled once per source, compiler and CPU into the cache (:func:`~sysid.core.pa
 ``native/``), with ``-march=native`` where the compiler accepts it, and loaded on first use;
 where there is no compiler, the build fails or ``SYSID_NATIVE=0`` is set, the caller's numpy
 path runs instead (the same results to rounding). :func:`native_status` says which.
+:func:`steady_heap` sets the C library's malloc thresholds for the same numerics.
 """
 
 from __future__ import annotations
@@ -186,12 +187,12 @@ def native_status() -> dict[str, str]:
 @functools.lru_cache(maxsize=None)
 def steady_heap() -> bool:
     """Fix glibc's malloc thresholds at :data:`HEAP_MMAP_THRESHOLD` and
-    :data:`HEAP_TRIM_THRESHOLD`, once per process, so that the fits' mid-sized temporaries
-    (megabytes, allocated and freed at every evaluation) reuse the heap instead of being
-    mapped, faulted in and unmapped each time. Nothing elsewhere than on glibc, where the
-    process's environment sets either threshold itself (``MALLOC_MMAP_THRESHOLD_``,
-    ``MALLOC_TRIM_THRESHOLD_``: its owner's choice), or with ``SYSID_STEADY_HEAP=0``.
-    Returns whether the thresholds were set."""
+    :data:`HEAP_TRIM_THRESHOLD`, once per process, so that the numerics' mid-sized
+    temporaries (megabytes, allocated and freed at every fit evaluation) reuse the heap
+    instead of being mapped, faulted in and unmapped each time. Left alone: another C
+    library, an environment that sets either threshold itself (``MALLOC_MMAP_THRESHOLD_``,
+    ``MALLOC_TRIM_THRESHOLD_``: its owner's choice), and ``SYSID_STEADY_HEAP=0``. Returns
+    whether the thresholds were set."""
     if (os.environ.get("SYSID_STEADY_HEAP", "1") == "0"
             or platform.libc_ver()[0] != "glibc"
             or any(f"MALLOC_{k}_THRESHOLD_" in os.environ for k in ("MMAP", "TRIM"))):
