@@ -425,6 +425,7 @@ def test_worker_settings_do_not_outlive_a_cluster_that_fails_to_start(tmp_path, 
     import distributed  # noqa: F401  (its defaults in the config, as any caller would have)
 
     before = dask.config.get("distributed.worker.multiprocessing-method")
+    tick = dask.config.get("distributed.admin.tick.interval")
 
     def refuse(*args, **kwargs):
         assert dask.config.get("distributed.worker.multiprocessing-method") == \
@@ -436,6 +437,7 @@ def test_worker_settings_do_not_outlive_a_cluster_that_fails_to_start(tmp_path, 
         run_batch([Condition(0.0, seed=1, quick=True)], tmp_path, quiet=True)
     assert dask.config.get("distributed.worker.multiprocessing-method") == before
     assert dask.config.get("distributed.worker.profile.enabled") is True
+    assert dask.config.get("distributed.admin.tick.interval") == tick != "1s"
     assert dask.config.get("distributed.comm.timeouts.connect")  # the section is still there
 
 

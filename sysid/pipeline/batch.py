@@ -589,11 +589,17 @@ class BatchResult:
 #: the driver, which has imported the study's modules, rather than spawned (each importing
 #: them again): the cluster starts in 0.11 s instead of 1.7 s on an idle machine, serial
 #: time in every batch (docs/notes/2026-11-27-batch-forked-workers.md); a forked worker
-#: keeps the driver's BLAS thread pool, and every part limits it again (``run_study``).
+#: keeps the driver's BLAS thread pool, and every part limits it again (``run_study``). The
+#: event loops' blocked-loop tick (every 20 ms by default) and system monitor (every 0.5 s)
+#: run every 1 s and 2 s: in a worker they woke the loop beside the task's thread (four quick
+#: conditions: 8 200-8 600 involuntary context switches of the workers against 2 200-3 500,
+#: and 1-3 s more of their CPU; docs/notes/2026-11-28-batch-ratio-after-faster-parts.md).
 WORKER_CONFIG = {
     "distributed.nanny.pre-spawn-environ": {
         "OPENBLAS_NUM_THREADS": 1, "OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1},
     "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "2s",
     "distributed.worker.multiprocessing-method":
         "fork" if sys.platform.startswith("linux") else "spawn",
 }
