@@ -192,7 +192,7 @@ def test_identification_entry_points_set_their_numerics(monkeypatch, module, ent
     assert seen == [{1}] and steadied == [True]
 
 
-def test_steady_heap_sets_glibc_thresholds_unless_the_environment_does(tmp_path):
+def test_steady_heap_sets_glibc_thresholds_unless_the_environment_does():
     """steady_heap fixes glibc's thresholds once per process: six 4 MB arrays alive together
     and then freed, as a fit's temporaries are at every evaluation, are reused from the heap
     on the next round without a page fault, where glibc's adaptive thresholds (trim at twice

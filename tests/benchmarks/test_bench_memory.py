@@ -2,12 +2,12 @@
 with the package imported, measured in the same run (a ratio, not an absolute number).
 
 The study runs in a fresh interpreter through the CLI's own entry point; that process
-reports its own peak (the kernel's VmHWM: ``getrusage``'s ``ru_maxrss`` of a process started
-by ``subprocess`` also counts the RSS of the process that started it, which Linux keeps
-across the exec, and reported the pytest process's 642 MiB for both the study and the
-baseline) and the largest of its child processes (the report's figure workers,
-RUSAGE_CHILDREN: an upper bound, for the same reason). Reported in ``benchmark.extra_info``, not
-asserted (tests/test_batch_memory.py asserts that a batch's driver does not grow with the
+reports its own peak (the kernel's VmHWM: ``getrusage``'s ``ru_maxrss`` of a process
+started by ``subprocess`` also counts the RSS of the process that started it, which Linux
+keeps across the exec, and reported the pytest process's 642 MiB for both the study and
+the baseline) and the largest of its child processes (the report's figure workers,
+RUSAGE_CHILDREN: an upper bound, for the same reason). Reported in
+``benchmark.extra_info``, not asserted (tests/test_batch_memory.py asserts that a batch's driver does not grow with the
 number of conditions). The study takes minutes: it runs only with --benchmark-enable.
 """
 
